@@ -1,0 +1,70 @@
+"""Algorithm registry: ``--algo NAME`` -> an ``Algorithm`` the shared trainer, evaluation,
+robustness sweep and transfer all drive the same way."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+from score_jax import score
+from score_jax.evaluation import ActFn, EvalResult, evaluate
+from score_jax.trainer import OffPolicyAlgorithm
+
+
+@dataclasses.dataclass(frozen=True)
+class Algorithm:
+    """An off-policy algorithm plus how to read its deterministic policy out of a state.
+
+    ``policy(agent_state) -> act_fn(env_state_batch, key) -> [E, n_agents, width]``.
+    """
+
+    name: str
+    off_policy: OffPolicyAlgorithm
+    policy: Callable[[Any], ActFn]
+    networks: Any = None
+
+    def evaluate(self, run, state, n_episodes: int, n_failed=0, mode=0, key=None) -> EvalResult:
+        key = jax.random.PRNGKey(run.config.seed + 10_000) if key is None else key
+        return evaluate(run.env, self.policy(state.agent), key, n_episodes, run.agent_index, n_failed, mode)
+
+
+def action_width(cfg, env) -> int:
+    width = cfg.score.action_width or env.space.max_dim
+    if width < env.space.max_dim:
+        raise ValueError(f"action_width={width} is smaller than the environment's max_dim={env.space.max_dim}")
+    return width
+
+
+def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> Algorithm:
+    sc = cfg.score
+    width = action_width(cfg, env)
+    nets = score.ScoreNetworks(sc, env.observation_size, len(agent_index), width, env.space.max_choices)
+    fixed = np.ones(env.space.n, bool)
+    fixed[np.asarray(agent_index)] = False
+    key_asrl, _ = jax.random.split(key)
+    if pretrain:
+        log(f"ASRL: training the HVAE on observation sets of {len(agent_index)} sub-spaces ...")
+        frozen = score.pretrain(env, agent_index, sc, width, key_asrl, log=log, fixed_default=fixed)
+    else:
+        frozen = score.frozen_template(env, len(agent_index), sc, width)
+    consts = score.agent_consts(env.space, agent_index, width, frozen)
+    update = score.make_update(nets)
+
+    def act(state, obs, key, deterministic):
+        return nets.policy_fn(state.actor, state.consts, obs, key, deterministic)[0]
+
+    off = OffPolicyAlgorithm("score", lambda k: score.init_state(nets, k, consts), act, update, score.hyper(sc), len(agent_index), width)
+    policy = lambda agent: (lambda env_state, k: act(agent, env_state.obs, k, True))
+    return Algorithm("score", off, policy, nets)
+
+
+REGISTRY: dict[str, Callable[..., Algorithm]] = {"score": make_score}
+
+
+def make(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> Algorithm:
+    if cfg.algo not in REGISTRY:
+        raise ValueError(f"unknown algorithm {cfg.algo!r}; known: {sorted(REGISTRY)}")
+    return REGISTRY[cfg.algo](cfg, env, agent_index, key, pretrain=pretrain, log=log)

@@ -1,0 +1,97 @@
+"""Run configuration: frozen dataclasses exposed on the command line with tyro.
+
+Shape-changing fields (network sizes, number of envs, batch size) are static; numbers that
+only scale arrays (learning rates, gamma, tau, DropNode rate) are fed as arrays where the
+compiled code allows it.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from typing import Literal
+
+from score_jax.score import ScoreConfig
+from score_jax.trainer import OffPolicyConfig
+
+EnvName = Literal["greenhouse", "spider", "probe"]
+AlgoName = Literal["score"]
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Train an algorithm on a composite-action environment (default: SCORE on the greenhouse)."""
+
+    env: EnvName = "greenhouse"
+    """Environment name."""
+    algo: AlgoName = "score"
+    """Algorithm."""
+    total_steps: int = 0
+    """Environment steps (transitions) to train for; 0 = the environment's preset."""
+    seed: int = 0
+    """Seed of every random stream (ASRL data, init, exploration, replay, evaluation)."""
+    run_dir: str = ""
+    """Where checkpoints, metrics.csv and plots go; empty = runs/<env>-<algo>-s<seed>."""
+    resume: str = ""
+    """Resume the run in this directory from its latest checkpoint (the saved config is used)."""
+    subspaces: str = ""
+    """Comma-separated sub-spaces to control (the others stay at their defaults); empty = all."""
+    env_options: tuple[str, ...] = ()
+    """Environment options as key=value (e.g. reward=profit discrete_hours=False)."""
+    checkpoint_every: int = 0
+    """Save a checkpoint every this many environment steps; 0 = about 10 per run."""
+    eval_episodes: int = 10
+    """Episodes per evaluation (each a full season / episode)."""
+    eval_every: int = 0
+    """Evaluate the deterministic policy every this many env steps; 0 = only at the end."""
+    quiet: bool = False
+    """No progress bar."""
+    data_parallel: bool = True
+    """Shard environments and batches over all devices when there are several."""
+    off_policy: OffPolicyConfig = OffPolicyConfig()
+    """Rollout, replay and update schedule."""
+    score: ScoreConfig = ScoreConfig()
+    """SCORE networks, ASRL and SAC settings."""
+
+    def env_overrides(self) -> dict:
+        """``env_options`` parsed into keyword overrides (values as Python literals when possible)."""
+        out = {}
+        for item in self.env_options:
+            if "=" not in item:
+                raise ValueError(f"env option {item!r} must look like key=value")
+            key, value = item.split("=", 1)
+            try:
+                out[key] = ast.literal_eval(value)
+            except (ValueError, SyntaxError):
+                out[key] = value
+        return out
+
+    def agent_names(self) -> tuple[str, ...]:
+        return tuple(x.strip() for x in self.subspaces.split(",") if x.strip())
+
+
+# Budgets that finish on a laptop CPU (see README for the measured wall times).
+PRESET_TOTAL_STEPS = {"greenhouse": 120_000, "spider": 200_000, "probe": 4_000}
+
+
+def resolved_total_steps(cfg: TrainConfig) -> int:
+    return cfg.total_steps or PRESET_TOTAL_STEPS[cfg.env]
+
+
+def to_dict(cfg) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def from_dict(cls, d: dict):
+    """Rebuild a (nested) frozen dataclass from ``to_dict`` output, ignoring unknown keys."""
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in d:
+            continue
+        value = d[f.name]
+        if dataclasses.is_dataclass(f.default) and isinstance(value, dict):
+            value = from_dict(type(f.default), value)
+        elif isinstance(value, list):
+            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        kwargs[f.name] = value
+    return cls(**kwargs)

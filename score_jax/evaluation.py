@@ -1,0 +1,96 @@
+"""Full evaluation episodes under failures: one function used by train.py, the robustness
+sweep (which vmaps it over settings) and every baseline.
+
+At each step ``n_failed`` of the controlled sub-spaces are drawn at random and fail with
+``mode`` (§5.2.3): the environment receives the replacement from ``score_jax.failures``.
+``n_failed`` and ``mode`` are arrays, so one compiled function serves every setting.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from envs.base import CompositeEnv
+from score_jax.failures import apply_failures, failure_mask
+from score_jax.spaces import agents_to_env_action, pad_width, sample_agent_actions
+
+# act_fn(env_state [E], key) -> agent actions [E, n_agents, width]; a learned policy reads
+# env_state.obs, a scripted one (the greenhouse expert) may read the simulator state.
+ActFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@struct.dataclass
+class EvalResult:
+    returns: jax.Array  # [E] undiscounted episode returns
+    lengths: jax.Array  # [E] steps until done (episode_length if never done)
+
+
+def evaluate(
+    env: CompositeEnv,
+    act_fn: ActFn,
+    key: jax.Array,
+    n_episodes: int,
+    agent_index,
+    n_failed: jax.Array | int = 0,
+    mode: jax.Array | int = 0,
+) -> EvalResult:
+    """Run ``n_episodes`` full episodes in parallel (``lax.scan`` over steps of ``vmap`` over episodes).
+
+    Args:
+      env: the environment (not auto-resetting).
+      act_fn: the policy, batched over episodes.
+      key: PRNG key (reset states, policy noise, failure draws).
+      n_episodes: E, static.
+      agent_index: ``[n_agents]`` sub-space of ``env.space`` controlled by each agent (static).
+      n_failed: number of controlled sub-spaces that fail at each step (redrawn every step).
+      mode: a ``FailureMode`` value.
+    """
+    space = env.space
+    agent_index = np.asarray(agent_index)
+    controlled = np.zeros(space.n, bool)
+    controlled[agent_index] = True
+    key_reset, key_run = jax.random.split(key)
+    state = jax.vmap(env.reset)(jax.random.split(key_reset, n_episodes))
+    last = jnp.broadcast_to(space.default_action(), (n_episodes, space.n, space.max_dim))
+
+    def step(carry, key_t):
+        state, last, ret, alive, length = carry
+        key_act, key_mask, key_fail = jax.random.split(key_t, 3)
+        action = agents_to_env_action(space, act_fn(state, key_act), agent_index)
+        fail_keys = jax.random.split(key_mask, n_episodes)
+        active = jax.vmap(lambda k: failure_mask(k, space.n, n_failed, jnp.asarray(controlled)))(fail_keys)
+        active = active | ~controlled  # uncontrolled sub-spaces are already at their defaults
+        applied = jax.vmap(apply_failures, in_axes=(None, 0, 0, None, 0, 0))(
+            space, action, active, mode, jax.random.split(key_fail, n_episodes), last
+        )
+        state = jax.vmap(env.step)(state, applied)
+        ret = ret + alive * state.reward
+        length = length + alive
+        alive = alive * (1.0 - state.done)
+        return (state, applied, ret, alive, length), None
+
+    zeros = jnp.zeros(n_episodes)
+    carry = (state, last, zeros, jnp.ones(n_episodes), zeros)
+    (_, _, ret, _, length), _ = jax.lax.scan(step, carry, jax.random.split(key_run, env.episode_length))
+    return EvalResult(ret, length)
+
+
+def random_act_fn(space, agent_index, width: int) -> ActFn:
+    """A uniformly random policy over the controlled sub-spaces (the 'random' reference)."""
+    return lambda state, key: sample_agent_actions(space, agent_index, key, state.obs.shape[:1], width)
+
+
+def default_act_fn(space, agent_index, width: int) -> ActFn:
+    """Every controlled sub-space at its physical default (the 'default setpoints' reference)."""
+    a = space.default_action()[np.asarray(agent_index)]
+    a = pad_width(a, width)
+
+    def act(state, key):
+        return jnp.broadcast_to(a, (state.obs.shape[0], *a.shape))
+
+    return act

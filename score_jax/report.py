@@ -1,0 +1,78 @@
+"""End-of-run report: the learned policy against reference policies, and the learning curve."""
+
+from __future__ import annotations
+
+import csv
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from score_jax.checkpoint import dump_json
+from score_jax.evaluation import ActFn, default_act_fn, evaluate, random_act_fn
+from score_jax.spaces import pad_width
+
+
+def expert_act_fn(env, agent_index, width: int) -> ActFn | None:
+    """The environment's scripted expert (if it has one, e.g. the greenhouse grower heuristic)."""
+    expert = getattr(env, "expert_action", None)
+    if expert is None:
+        return None
+    idx = np.asarray(agent_index)
+    return lambda state, key: pad_width(jax.vmap(expert)(state)[:, idx], width)
+
+
+def reference_policies(run) -> dict[str, ActFn]:
+    width = run.algo.off_policy.width
+    refs = {"random": random_act_fn(run.env.space, run.agent_index, width), "default": default_act_fn(run.env.space, run.agent_index, width)}
+    expert = expert_act_fn(run.env, run.agent_index, width)
+    if expert is not None:
+        refs["expert"] = expert
+    return refs
+
+
+def final_evaluation(run, n_episodes: int, log=print) -> dict:
+    """Mean/std return of the trained policy and each reference over the same seeds; printed as a table."""
+    key = jax.random.PRNGKey(run.config.seed + 20_000)
+    policies = {run.config.algo: run.algo.policy(run.state.agent), **reference_policies(run)}
+    rows = {}
+    for name, act in policies.items():
+        r = np.asarray(jax.jit(lambda k, act=act: evaluate(run.env, act, k, n_episodes, run.agent_index).returns)(key))
+        rows[name] = {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()), "max": float(r.max())}
+    lines = [f"{'policy':<10s} {'return mean':>12s} {'std':>9s} {'min':>10s} {'max':>10s}   ({n_episodes} episodes)"]
+    lines += [f"{k:<10s} {v['mean']:12.2f} {v['std']:9.2f} {v['min']:10.2f} {v['max']:10.2f}" for k, v in rows.items()]
+    log("\n".join(lines))
+    dump_json(os.path.join(run.run_dir, "evaluation.json"), {"episodes": n_episodes, "returns": rows})
+    return rows
+
+
+def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:
+    """Episode return (training episodes, and deterministic evaluations if any) against env steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    steps = np.array([float(r["env_steps"]) for r in rows])
+    ret = np.array([float(r["episode_return"]) for r in rows])
+    ev = np.array([float(r["eval_return"]) for r in rows])
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ok = ~np.isnan(ret)
+    if ok.any():
+        ax.plot(steps[ok], ret[ok], ".", alpha=0.35, label="training episodes")
+        window = max(1, ok.sum() // 20)
+        smooth = np.convolve(ret[ok], np.ones(window) / window, mode="valid")
+        ax.plot(steps[ok][window - 1 :], smooth, "-", lw=2, label=f"moving mean ({window})")
+    if (~np.isnan(ev)).any():
+        ax.plot(steps[~np.isnan(ev)], ev[~np.isnan(ev)], "o-", label="evaluation (deterministic)")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("episode return")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,158 @@
+"""Multi-agent soft actor-critic losses and the one-jit update (Alg. 1, lines 11-15).
+
+Written once against two functions, so SCORE and the SAC-based baselines (ISAC, MAAC, the
+ablations) share it:
+
+- ``policy_fn(actor_params, consts, obs[B, obs], key, deterministic) -> (action[B, n, w], log_prob[B, n])``
+  samples every sub-space's sub-action (decentralised actors);
+- ``q_fn(critic_params, consts, obs[B, obs], action[B, n, w], mask[B, n]) -> q[B, 2]``
+  evaluates the twin centralised critics on the agents where ``mask`` is True.
+
+Agent masks (``valid`` agents, failed sub-spaces and DropNode) are arrays inside the update,
+so changing them never recompiles anything.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from score_jax.failures import dropnode_mask
+from score_jax.replay import Transition
+
+
+@struct.dataclass
+class AgentConsts:
+    """Per-agent arrays that describe the sub-spaces (no recompilation when they change).
+
+    Attributes:
+      dim_mask: ``[n, w]`` bool, real dimensions of each sub-space.
+      n_choices: ``[n, w]`` int32, grid size of discrete dims (0 = continuous).
+      valid: ``[n]`` bool, agents that exist (False for padding when the agent axis is grown).
+      target_entropy: ``[n]`` per-agent entropy target for the temperature alpha.
+      critic_inputs: algorithm-specific frozen inputs of the critic (SCORE: HVAE params, c_i).
+    """
+
+    dim_mask: jax.Array
+    n_choices: jax.Array
+    valid: jax.Array
+    target_entropy: jax.Array
+    critic_inputs: Any = None
+
+
+@struct.dataclass
+class SACHyper:
+    """Hyperparameters fed as arrays, so sweeping them does not recompile."""
+
+    gamma: jax.Array
+    tau: jax.Array
+    dropnode_prob: jax.Array
+    reward_scale: jax.Array
+
+
+@struct.dataclass
+class SACState:
+    actor: Any
+    critic: Any
+    target_critic: Any
+    log_alpha: jax.Array  # []
+    actor_opt: Any
+    critic_opt: Any
+    alpha_opt: Any
+    consts: AgentConsts
+
+
+@struct.dataclass
+class SACMetrics:
+    critic_loss: jax.Array
+    actor_loss: jax.Array
+    alpha: jax.Array
+    entropy: jax.Array  # mean over the batch of -sum_i log pi_i
+    q_mean: jax.Array
+
+
+PolicyFn = Callable[..., tuple[jax.Array, jax.Array]]
+QFn = Callable[..., jax.Array]
+
+
+def target_entropy(dim_mask, n_choices, discrete_scale: float = 0.3) -> jax.Array:
+    """``[n]`` entropy target: -1 per continuous dim, ``discrete_scale * log(n_choices)`` per discrete dim."""
+    per_dim = jnp.where(n_choices > 0, discrete_scale * jnp.log(jnp.maximum(n_choices, 1)), -1.0)
+    return jnp.sum(jnp.where(dim_mask, per_dim, 0.0), axis=-1)
+
+
+def critic_loss(critic_params, state: SACState, batch: Transition, mask, key, hyper: SACHyper, policy_fn: PolicyFn, q_fn: QFn):
+    """Alg. 1 lines 12-13: mean over the batch and both critics of (Q_j - y)^2 / 2."""
+    consts = state.consts
+    next_action, next_logp = policy_fn(state.actor, consts, batch.next_obs, key, False)
+    next_q = jnp.min(q_fn(state.target_critic, consts, batch.next_obs, next_action, mask), axis=-1)
+    alpha = jnp.exp(state.log_alpha)
+    soft_next = next_q - alpha * jnp.sum(jnp.where(mask, next_logp, 0.0), axis=-1)
+    y = hyper.reward_scale * batch.reward + hyper.gamma * (1.0 - batch.terminal) * soft_next
+    q = q_fn(critic_params, consts, batch.obs, batch.action, mask)
+    loss = 0.5 * jnp.mean(jnp.sum((q - jax.lax.stop_gradient(y)[:, None]) ** 2, axis=-1))
+    return loss, jnp.mean(q)
+
+
+def actor_loss(actor_params, state: SACState, batch: Transition, mask, key, policy_fn: PolicyFn, q_fn: QFn):
+    """Alg. 1 line 14: mean of alpha * sum_i log pi_i - min_j Q_j(o, a~(o)); masked agents excluded."""
+    consts = state.consts
+    action, logp = policy_fn(actor_params, consts, batch.obs, key, False)
+    q = jnp.min(q_fn(state.critic, consts, batch.obs, action, mask), axis=-1)
+    sum_logp = jnp.sum(jnp.where(mask, logp, 0.0), axis=-1)
+    loss = jnp.mean(jnp.exp(state.log_alpha) * sum_logp - q)
+    return loss, sum_logp
+
+
+def alpha_loss(log_alpha, sum_logp, mask, consts: AgentConsts):
+    """Automatic entropy tuning: drive -sum_i log pi_i towards the masked entropy target."""
+    target = jnp.sum(jnp.where(mask, consts.target_entropy, 0.0), axis=-1)
+    return -jnp.mean(log_alpha * jax.lax.stop_gradient(sum_logp + target))
+
+
+def make_sac_update(
+    policy_fn: PolicyFn,
+    q_fn: QFn,
+    actor_opt: optax.GradientTransformation,
+    critic_opt: optax.GradientTransformation,
+    alpha_opt: optax.GradientTransformation,
+):
+    """Returns ``update(state, batch, key, hyper) -> (state, SACMetrics)`` (pure; jit it or scan it).
+
+    Critics, all actors (one stacked parameter tree), alpha and the Polyak targets are updated
+    in one function. The critic mask of each sample is ``valid & batch.active & DropNode``.
+    """
+
+    def update(state: SACState, batch: Transition, key: jax.Array, hyper: SACHyper):
+        key_drop, key_critic, key_actor = jax.random.split(key, 3)
+        b = batch.reward.shape[0]
+        valid = state.consts.valid & batch.active
+        mask = jax.vmap(dropnode_mask, in_axes=(0, 0, None))(jax.random.split(key_drop, b), valid, hyper.dropnode_prob)
+
+        (c_loss, q_mean), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
+            state.critic, state, batch, mask, key_critic, hyper, policy_fn, q_fn
+        )
+        c_updates, critic_opt_state = critic_opt.update(c_grads, state.critic_opt, state.critic)
+        critic = optax.apply_updates(state.critic, c_updates)
+        state = state.replace(critic=critic, critic_opt=critic_opt_state)
+
+        (a_loss, sum_logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
+            state.actor, state, batch, mask, key_actor, policy_fn, q_fn
+        )
+        a_updates, actor_opt_state = actor_opt.update(a_grads, state.actor_opt, state.actor)
+        actor = optax.apply_updates(state.actor, a_updates)
+
+        al_grad = jax.grad(alpha_loss)(state.log_alpha, sum_logp, mask, state.consts)
+        al_update, alpha_opt_state = alpha_opt.update(al_grad, state.alpha_opt, state.log_alpha)
+        log_alpha = optax.apply_updates(state.log_alpha, al_update)
+
+        target = optax.incremental_update(critic, state.target_critic, hyper.tau)
+        state = state.replace(actor=actor, actor_opt=actor_opt_state, log_alpha=log_alpha, alpha_opt=alpha_opt_state, target_critic=target)
+        metrics = SACMetrics(c_loss, a_loss, jnp.exp(log_alpha), -jnp.mean(sum_logp), q_mean)
+        return state, metrics
+
+    return update

@@ -1,0 +1,204 @@
+"""The Python driver of a training run: epochs, progress, metrics.csv, checkpoints, evaluation.
+
+Everything numeric happens inside the jitted epoch (``score_jax.trainer``); this loop only
+moves one small metrics struct to the host per epoch. Reliability:
+- a checkpoint (the whole ``TrainState`` + config + space spec) every ``checkpoint_every``
+  env steps and at the end; ``--resume RUN_DIR`` continues bit-exactly from the latest one;
+- a non-finite loss or parameter stops the run with a message and keeps the last good
+  checkpoint (nothing after it is saved).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+import sys
+import time
+
+import jax
+import numpy as np
+
+import envs
+from score_jax import algorithms
+from score_jax.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
+from score_jax.config import TrainConfig, from_dict, resolved_total_steps, to_dict
+from score_jax.trainer import Trainer, TrainState, make_data_mesh
+
+METRIC_COLUMNS = ("env_steps", "updates", "wall_s", "episode_return", "reward_mean", "critic_loss", "actor_loss", "alpha", "entropy", "q_mean", "eval_return")
+
+
+class NonFiniteError(RuntimeError):
+    """A loss or parameter became NaN/inf; the run stopped at the last good checkpoint."""
+
+
+@dataclasses.dataclass
+class Run:
+    """Everything a finished (or resumed) run hands to evaluation, plots and transfer."""
+
+    config: TrainConfig
+    run_dir: str
+    env: object
+    algo: algorithms.Algorithm
+    trainer: Trainer
+    state: TrainState
+    agent_index: np.ndarray
+
+
+def default_run_dir(cfg: TrainConfig) -> str:
+    return cfg.run_dir or os.path.join("runs", f"{cfg.env}-{cfg.algo}-s{cfg.seed}")
+
+
+def resolve_agent_index(space, names: tuple[str, ...]) -> np.ndarray:
+    """Sub-spaces controlled by agents, in the space's order (all when ``names`` is empty)."""
+    if not names:
+        return np.arange(space.n)
+    return np.asarray([space.index(n) for n in space.subset(names).names])
+
+
+def build(cfg: TrainConfig, key: jax.Array, run_dir: str, restoring: bool = False, log=print) -> Run:
+    """Environment, algorithm (incl. SCORE's ASRL stage unless ``restoring``) and trainer."""
+    env = envs.make(cfg.env, **cfg.env_overrides())
+    agent_index = resolve_agent_index(env.space, cfg.agent_names())
+    algo = algorithms.make(cfg, env, agent_index, key, pretrain=not restoring, log=log)
+    mesh = make_data_mesh() if cfg.data_parallel and jax.device_count() > 1 else None
+    trainer = Trainer(env, algo.off_policy, cfg.off_policy, agent_index, mesh)
+    return Run(cfg, run_dir, env, algo, trainer, None, agent_index)
+
+
+def _meta(run: Run) -> dict:
+    return {
+        "env": run.config.env,
+        "env_options": run.config.env_overrides(),
+        "space": run.env.space.to_dict(),
+        "agents": [run.env.space.names[i] for i in run.agent_index],
+        "algo": run.config.algo,
+        "config": to_dict(run.config),
+    }
+
+
+def _row(state: TrainState, metrics, wall: float, eval_return: float) -> dict:
+    m = jax.device_get(metrics)
+    done = float(m.completed_episodes)
+    agent = m.agent
+    get = lambda name: float(getattr(agent, name)) if hasattr(agent, name) else float("nan")
+    return {
+        "env_steps": int(state.env_steps), "updates": int(state.updates), "wall_s": round(wall, 2),
+        "episode_return": float(m.completed_return_sum) / done if done else float("nan"),
+        "reward_mean": float(m.reward_mean), "critic_loss": get("critic_loss"), "actor_loss": get("actor_loss"),
+        "alpha": get("alpha"), "entropy": get("entropy"), "q_mean": get("q_mean"), "eval_return": eval_return,
+    }
+
+
+def _truncate_csv(path: str, max_env_steps: int) -> None:
+    """On resume, drop rows written after the checkpoint (they will be produced again)."""
+    if not os.path.exists(path):
+        return
+    with open(path) as f:
+        rows = [r for r in csv.DictReader(f) if int(r["env_steps"]) <= max_env_steps]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, METRIC_COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def train(cfg: TrainConfig, log=print, on_epoch=None) -> Run:
+    """Train (or resume) a run; returns the final ``Run``. ``on_epoch(run, row)`` is a test hook."""
+    if cfg.resume:
+        meta = Checkpointer(cfg.resume).read_meta()
+        saved = from_dict(TrainConfig, meta["config"])
+        cfg = dataclasses.replace(saved, resume=cfg.resume, run_dir=cfg.resume, quiet=cfg.quiet)
+    run_dir = default_run_dir(cfg)
+    os.makedirs(run_dir, exist_ok=True)
+    total = resolved_total_steps(cfg)
+    key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
+
+    run = build(cfg, key_build, run_dir, restoring=bool(cfg.resume), log=log)
+    state = run.trainer.init(key_train)
+    ckpt = Checkpointer(run_dir)
+    csv_path = os.path.join(run_dir, "metrics.csv")
+    if cfg.resume:
+        state, meta = ckpt.restore(state)
+        check_space_matches(meta, cfg.env, run.env.space)
+        state = run.trainer.place(state)
+        _truncate_csv(csv_path, int(state.env_steps))
+        log(f"resumed {run_dir} at env step {int(state.env_steps)}")
+    else:
+        if ckpt.latest_step() is not None:
+            raise CheckpointError(f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or choose another --run-dir")
+        dump_json(os.path.join(run_dir, "config.json"), to_dict(cfg))
+        _truncate_csv(csv_path, -1)
+    run.state = state
+
+    steps_per_epoch = cfg.off_policy.num_envs * cfg.off_policy.steps_per_epoch
+    ckpt_every = cfg.checkpoint_every or max(steps_per_epoch, (total // 10) // steps_per_epoch * steps_per_epoch)
+    last_ckpt = int(state.env_steps)
+    hyper = run.algo.off_policy.hyper
+    progress = _progress(total, int(state.env_steps), cfg.quiet)
+    recent = []
+    t0 = time.time()
+    with open(csv_path, "a", newline="") as f:
+        writer = csv.DictWriter(f, METRIC_COLUMNS)
+        while int(state.env_steps) < total:
+            state, metrics = run.trainer.epoch(state, hyper)
+            if not bool(metrics.finite):
+                ckpt.close()
+                raise NonFiniteError(
+                    f"non-finite loss or parameter at env step {int(state.env_steps)}; stopped. "
+                    f"The last good checkpoint (env step {last_ckpt}) is kept in {ckpt.directory}."
+                )
+            eval_return = float("nan")
+            if cfg.eval_every and int(state.env_steps) // cfg.eval_every != (int(state.env_steps) - steps_per_epoch) // cfg.eval_every:
+                eval_return = float(np.mean(run.algo.evaluate(run, state, n_episodes=cfg.eval_episodes).returns))
+            row = _row(state, metrics, time.time() - t0, eval_return)
+            writer.writerow(row)
+            f.flush()
+            if not np.isnan(row["episode_return"]):
+                recent = (recent + [row["episode_return"]])[-10:]
+            progress.update(steps_per_epoch, recent[-1] if recent else None)
+            run.state = state
+            if on_epoch is not None:
+                on_epoch(run, row)
+            if int(state.env_steps) - last_ckpt >= ckpt_every:
+                ckpt.save(int(state.env_steps), state, _meta(run))
+                last_ckpt = int(state.env_steps)
+    if last_ckpt != int(state.env_steps):
+        ckpt.save(int(state.env_steps), state, _meta(run))
+    progress.close()
+    ckpt.close()
+    return run
+
+
+class _progress:
+    """tqdm progress over env steps with the recent episode return; silent when quiet."""
+
+    def __init__(self, total: int, start: int, quiet: bool):
+        self.bar = None
+        if not quiet:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, initial=start, unit="step", dynamic_ncols=True, file=sys.stderr, mininterval=1.0)
+
+    def update(self, n: int, recent_return: float | None):
+        if self.bar is not None:
+            if recent_return is not None:
+                self.bar.set_postfix_str(f"return {recent_return:.1f}", refresh=False)
+            self.bar.update(n)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def restore_run(run_dir: str, log=print) -> Run:
+    """Rebuild a finished run from its latest checkpoint (for evaluation, sweeps and transfer)."""
+    ckpt = Checkpointer(run_dir)
+    meta = ckpt.read_meta()
+    cfg = from_dict(TrainConfig, meta["config"])
+    key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
+    run = build(cfg, key_build, run_dir, restoring=True, log=log)
+    state, meta = ckpt.restore(run.trainer.init(key_train))
+    check_space_matches(meta, cfg.env, run.env.space)
+    ckpt.close()
+    run.state = run.trainer.place(state)
+    return run

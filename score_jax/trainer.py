@@ -1,0 +1,200 @@
+"""The off-policy training epoch shared by SCORE and every off-policy baseline.
+
+Data parallel (DESIGN "Scale"): with a ``Mesh`` whose axis is ``data``, the environments and
+each sampled batch are sharded along it and parameters, optimiser states and the replay
+buffer are replicated; XLA inserts the gradient all-reduce. One process drives all local
+devices; several hosts join with ``jax.distributed.initialize`` before building the mesh.
+
+One jitted ``epoch`` = ``lax.scan`` over ``steps_per_epoch`` vectorised environment steps; each
+step acts in ``num_envs`` auto-resetting environments, writes the transitions to the replay
+buffer and runs ``updates_per_step`` gradient updates of the algorithm (Alg. 1 lines 2-16).
+Python only drives epochs: logging, evaluation, checkpoints.
+
+An algorithm plugs in through ``OffPolicyAlgorithm``: ``init``, ``act`` and ``update``; the
+update receives a replay batch and returns a new algorithm state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+from envs.base import CompositeEnv, EnvState
+from envs.wrappers import AutoReset
+from score_jax.replay import ReplayBuffer, Transition, replay_add, replay_init, replay_sample
+from score_jax.spaces import agents_to_env_action, sample_agent_actions
+
+
+@dataclasses.dataclass(frozen=True)
+class OffPolicyConfig:
+    """Shape-changing fields are static; the rest are fed as arrays where it matters."""
+
+    num_envs: int = 8
+    """Parallel environments (the ``data`` axis)."""
+    batch_size: int = 128
+    """Transitions per gradient update."""
+    replay_capacity: int = 50_000
+    """Ring buffer size in transitions."""
+    learning_starts: int = 400
+    """Transitions collected with the uniform random policy before updates start."""
+    updates_per_step: int = 1
+    """Gradient updates per vectorised environment step."""
+    steps_per_epoch: int = 20
+    """Vectorised environment steps per jitted epoch call."""
+
+
+class OffPolicyAlgorithm(NamedTuple):
+    """What the trainer needs from an algorithm.
+
+    ``init(key) -> state``; ``act(state, obs[B, obs], key, deterministic) -> action[B, n, w]``;
+    ``update(state, batch: Transition[B], key, hyper) -> (state, metrics)``; ``hyper`` is a
+    pytree of arrays (fed to every epoch, so changing it never recompiles).
+    """
+
+    name: str
+    init: Callable[[jax.Array], Any]
+    act: Callable[..., jax.Array]
+    update: Callable[..., tuple[Any, Any]]
+    hyper: Any
+    n_agents: int
+    width: int
+
+
+@struct.dataclass
+class TrainState:
+    agent: Any
+    buffer: ReplayBuffer
+    env_state: EnvState  # batched [num_envs], auto-resetting
+    episode_return: jax.Array  # [num_envs] running return of the current episodes
+    key: jax.Array
+    env_steps: jax.Array  # [] int32 transitions collected so far
+    updates: jax.Array  # [] int32 gradient updates so far
+
+
+@struct.dataclass
+class EpochMetrics:
+    agent: Any  # the algorithm's update metrics, averaged over the epoch's updates
+    completed_return_sum: jax.Array  # [] sum of returns of episodes that ended this epoch
+    completed_episodes: jax.Array  # [] number of such episodes
+    reward_mean: jax.Array  # [] mean per-step reward this epoch
+    finite: jax.Array  # [] bool: every loss and parameter is finite
+
+
+def _all_finite(tree) -> jax.Array:
+    leaves = [jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)]
+    return jnp.all(jnp.stack(leaves)) if leaves else jnp.array(True)
+
+
+class Trainer:
+    """Builds the initial state and the jitted epoch for one (env, algorithm, config)."""
+
+    def __init__(self, env: CompositeEnv, algo: OffPolicyAlgorithm, config: OffPolicyConfig, agent_index=None, mesh: Mesh | None = None):
+        self.env = AutoReset(env)
+        self.mesh = mesh
+        if mesh is not None and config.num_envs % mesh.size:
+            raise ValueError(f"num_envs={config.num_envs} must be a multiple of the {mesh.size} devices of the mesh")
+        if mesh is not None and config.batch_size % mesh.size:
+            raise ValueError(f"batch_size={config.batch_size} must be a multiple of the {mesh.size} devices of the mesh")
+        self.space = env.space
+        self.algo, self.config = algo, config
+        self.agent_index = np.arange(env.space.n) if agent_index is None else np.asarray(agent_index)
+        if len(self.agent_index) != algo.n_agents:
+            raise ValueError(f"algorithm has {algo.n_agents} agents but agent_index has {len(self.agent_index)}")
+        self.epoch = jax.jit(self._epoch)
+
+    # -- state -------------------------------------------------------------------------
+    def init(self, key: jax.Array) -> TrainState:
+        key, key_agent, key_env = jax.random.split(key, 3)
+        n, w, obs_size = self.algo.n_agents, self.algo.width, self.env.observation_size
+        example = Transition(
+            obs=jnp.zeros(obs_size), action=jnp.zeros((n, w)), reward=jnp.zeros(()),
+            next_obs=jnp.zeros(obs_size), terminal=jnp.zeros(()), active=jnp.ones(n, bool),
+        )
+        env_state = jax.vmap(self.env.reset)(jax.random.split(key_env, self.config.num_envs))
+        state = TrainState(
+            agent=self.algo.init(key_agent),
+            buffer=replay_init(example, self.config.replay_capacity),
+            env_state=env_state,
+            episode_return=jnp.zeros(self.config.num_envs),
+            key=key,
+            env_steps=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+        )
+        return self.place(state)
+
+    # -- data parallelism ------------------------------------------------------------------
+    def place(self, state: TrainState) -> TrainState:
+        """Shard the env batch along the mesh's ``data`` axis; replicate everything else."""
+        if self.mesh is None:
+            return state
+        data, replicated = NamedSharding(self.mesh, P("data")), NamedSharding(self.mesh, P())
+        put = lambda tree, sharding: jax.tree.map(lambda x: jax.device_put(x, sharding), tree)
+        return state.replace(
+            agent=put(state.agent, replicated), buffer=put(state.buffer, replicated), key=put(state.key, replicated),
+            env_state=put(state.env_state, data), episode_return=put(state.episode_return, data),
+            env_steps=put(state.env_steps, replicated), updates=put(state.updates, replicated),
+        )
+
+    def _shard_batch(self, tree):
+        if self.mesh is None:
+            return tree
+        return jax.lax.with_sharding_constraint(tree, NamedSharding(self.mesh, P("data")))
+
+    # -- one vectorised step + its updates ------------------------------------------------
+    def _step(self, carry: tuple[TrainState, Any], _):
+        state, hyper = carry
+        cfg = self.config
+        key, key_act, key_rand, key_upd = jax.random.split(state.key, 4)
+        policy_action = self.algo.act(state.agent, state.env_state.obs, key_act, False)
+        explore = state.env_steps < cfg.learning_starts
+        action = jnp.where(explore, sample_agent_actions(self.space, self.agent_index, key_rand, (cfg.num_envs,), self.algo.width), policy_action)
+        env_action = agents_to_env_action(self.space, action, self.agent_index)
+        env_state, final_obs = jax.vmap(self.env.step)(state.env_state, env_action)
+        transition = Transition(
+            obs=state.env_state.obs, action=action, reward=env_state.reward, next_obs=final_obs,
+            terminal=env_state.done * (1.0 - env_state.truncated), active=jnp.ones(action.shape[:2], bool),
+        )
+        buffer = replay_add(state.buffer, transition)
+        ret = state.episode_return + env_state.reward
+        completed = jnp.sum(ret * env_state.done), jnp.sum(env_state.done)
+        env_steps = state.env_steps + cfg.num_envs
+
+        def do_updates(agent):
+            def one(agent, k):
+                k_sample, k_update = jax.random.split(k)
+                batch = self._shard_batch(replay_sample(buffer, k_sample, cfg.batch_size))
+                return self.algo.update(agent, batch, k_update, hyper)
+
+            agent, metrics = jax.lax.scan(one, agent, jax.random.split(key_upd, cfg.updates_per_step))
+            return agent, jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), jnp.float32(1.0)
+
+        def skip(agent):
+            metrics = jax.eval_shape(lambda a: do_updates(a)[1], agent)
+            return agent, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics), jnp.float32(0.0)
+
+        learn = (env_steps >= cfg.learning_starts) & (buffer.size >= cfg.batch_size)
+        agent, metrics, did = jax.lax.cond(learn, do_updates, skip, state.agent)
+        state = TrainState(
+            agent=agent, buffer=buffer, env_state=env_state, episode_return=ret * (1.0 - env_state.done), key=key,
+            env_steps=env_steps, updates=state.updates + cfg.updates_per_step * did.astype(jnp.int32),
+        )
+        return (state, hyper), (metrics, did, completed, jnp.mean(env_state.reward))
+
+    def _epoch(self, state: TrainState, hyper) -> tuple[TrainState, EpochMetrics]:
+        (state, _), (metrics, did, completed, reward) = jax.lax.scan(self._step, (state, hyper), None, self.config.steps_per_epoch)
+        n_did = jnp.maximum(jnp.sum(did), 1.0)
+        mean_metrics = jax.tree.map(lambda m: jnp.sum(m * did.reshape((-1,) + (1,) * (m.ndim - 1)), axis=0) / n_did, metrics)
+        finite = _all_finite(mean_metrics) & _all_finite(state.agent)
+        return state, EpochMetrics(mean_metrics, jnp.sum(completed[0]), jnp.sum(completed[1]), jnp.mean(reward), finite)
+
+
+def make_data_mesh(devices=None) -> Mesh:
+    """A 1-D ``data`` mesh over all (local and, after ``jax.distributed.initialize``, remote) devices."""
+    devices = jax.devices() if devices is None else devices
+    return Mesh(np.asarray(devices), ("data",))
