@@ -49,7 +49,7 @@ def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> 
         log(f"ASRL: training the HVAE on observation sets of {len(agent_index)} sub-spaces ...")
         frozen = score.pretrain(env, agent_index, sc, width, key_asrl, log=log, fixed_default=fixed)
     else:
-        frozen = score.frozen_template(env, len(agent_index), sc, width)
+        frozen = score.frozen_template(env, agent_index, sc, width)
     consts = score.agent_consts(env.space, agent_index, width, frozen)
     update = score.make_update(nets)
 

@@ -20,7 +20,7 @@ from flax import struct
 from score_jax import asrl
 from score_jax.networks.actor import ActorConfig, Actors, sample_actions
 from score_jax.networks.critic import CriticConfig, TwinCritic
-from score_jax.networks.hvae import HVAE, HVAEConfig
+from score_jax.networks.hvae import HVAE, HVAEConfig, init_hvae
 from score_jax.sac import AgentConsts, SACHyper, SACState, make_sac_update, target_entropy
 from score_jax.spaces import CompositeSpace, pad_width
 
@@ -32,11 +32,11 @@ class ScoreConfig:
     hvae: HVAEConfig = HVAEConfig()
     critic: CriticConfig = CriticConfig()
     actor: ActorConfig = ActorConfig()
-    asrl_k: int = 8
+    asrl_k: int = 16
     """Random fixings of the other sub-spaces per sub-space (§4.1)."""
-    asrl_j: int = 16
+    asrl_j: int = 8
     """Random sub-actions per fixing (§4.1)."""
-    asrl_steps: int = 400
+    asrl_steps: int = 1500
     """HVAE training steps."""
     action_width: int = 0
     """Padded action width; 0 = the environment's full max_dim (so transfer can add sub-spaces)."""
@@ -94,7 +94,8 @@ class ScoreNetworks:
         """``obs [B, obs] -> (action [B, n, w], log_prob [B, n])`` (Alg. 1 line 2)."""
         out = jax.vmap(lambda o: self.actors.apply({"params": actor_params}, o))(obs)
         keys = jax.random.split(key, obs.shape[0])
-        action, logp = jax.vmap(sample_actions, in_axes=(0, None, None, 0, None))(out, consts.dim_mask, consts.n_choices, keys, deterministic)
+        sample = lambda o, k: sample_actions(o, consts.dim_mask, consts.n_choices, k, deterministic, self.config.actor.gumbel_temperature)
+        action, logp = jax.vmap(sample)(out, keys)
         valid = consts.valid[None, :]
         return jnp.where(valid[..., None], action, 0.0), jnp.where(valid, logp, 0.0)
 
@@ -167,16 +168,21 @@ def pretrain(env, agent_index, cfg: ScoreConfig, width: int, key: jax.Array, log
     return FrozenInputs(result.params, result.c)
 
 
-def frozen_template(env, n_agents: int, cfg: ScoreConfig, width: int) -> FrozenInputs:
-    """Shapes of the ASRL outputs without running ASRL (filled by a checkpoint restore)."""
+def frozen_template(env, agent_index, cfg: ScoreConfig, width: int) -> FrozenInputs:
+    """Shapes of the ASRL outputs without running ASRL (filled in by a checkpoint restore).
+
+    Traced with ``jax.eval_shape`` through the real data collection and HVAE init, so it
+    always matches what ``pretrain`` produces; nothing is computed.
+    """
     if not cfg.critic.asrl:
         return FrozenInputs(None, None)
     model = HVAE(cfg.hvae, env.observation_size, width)
-    t = cfg.hvae.predict_steps
-    args = (
-        jnp.zeros((2, env.observation_size)), jnp.zeros((2, env.observation_size)), jnp.zeros((2, width)),
-        jnp.ones(width, bool), jnp.zeros((2, t, env.observation_size)), jnp.ones((2, t), bool), jnp.ones(2, bool),
-    )
-    shapes = jax.eval_shape(lambda k: model.init(k, *args, k)["params"], jax.random.PRNGKey(0))
+    agents = [int(i) for i in agent_index]
+
+    def build(key):
+        sets = asrl.collect_observation_sets(env, key, agents, 1, 2, cfg.hvae.predict_steps, width, warmup_steps=1)
+        return init_hvae(model, key, sets)
+
+    shapes = jax.eval_shape(build, jax.random.PRNGKey(0))
     params = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-    return FrozenInputs(params, jnp.zeros((n_agents, cfg.hvae.space_embed_dim)))
+    return FrozenInputs(params, jnp.zeros((len(agents), cfg.hvae.space_embed_dim)))

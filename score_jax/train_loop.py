@@ -91,11 +91,11 @@ def _row(state: TrainState, metrics, wall: float, eval_return: float) -> dict:
 
 
 def _truncate_csv(path: str, max_env_steps: int) -> None:
-    """On resume, drop rows written after the checkpoint (they will be produced again)."""
-    if not os.path.exists(path):
-        return
-    with open(path) as f:
-        rows = [r for r in csv.DictReader(f) if int(r["env_steps"]) <= max_env_steps]
+    """Keep only rows up to ``max_env_steps`` (on resume, rows after the checkpoint are produced again)."""
+    rows = []
+    if os.path.exists(path):
+        with open(path) as f:
+            rows = [r for r in csv.DictReader(f) if int(r["env_steps"]) <= max_env_steps]
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, METRIC_COLUMNS)
         w.writeheader()

@@ -116,9 +116,9 @@ class Trainer:
             obs=jnp.zeros(obs_size), action=jnp.zeros((n, w)), reward=jnp.zeros(()),
             next_obs=jnp.zeros(obs_size), terminal=jnp.zeros(()), active=jnp.ones(n, bool),
         )
-        env_state = jax.vmap(self.env.reset)(jax.random.split(key_env, self.config.num_envs))
+        env_state = jax.jit(jax.vmap(self.env.reset))(jax.random.split(key_env, self.config.num_envs))
         state = TrainState(
-            agent=self.algo.init(key_agent),
+            agent=jax.jit(self.algo.init)(key_agent),
             buffer=replay_init(example, self.config.replay_capacity),
             env_state=env_state,
             episode_return=jnp.zeros(self.config.num_envs),

@@ -1,0 +1,183 @@
+"""Decentralised SAC actors, one per sub-action space (Alg. 1 lines 2 and 14, footnote 3).
+
+All actors share one architecture; their parameters are stacked on a leading agent axis
+(``nn.vmap``), so adding sub-spaces for transfer (§4.3) is a concatenation (``grow_agents``).
+Each actor emits, for every column of the padded ``[width]`` action, a Gaussian (used by
+continuous dims, squashed with tanh) and ``max_choices`` logits (used by discrete dims,
+straight-through Gumbel-softmax). Which head a column uses, and which columns exist, are
+ARRAY inputs (``dim_mask``, ``n_choices``) of ``sample_actions``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from score_jax.networks.mlp import MLP
+
+
+@dataclasses.dataclass(frozen=True)
+class ActorConfig:
+    """Actor sizes.
+
+    Attributes:
+      hidden: hidden widths of each agent's MLP.
+      log_std_min, log_std_max: range of the Gaussian log-std (smooth tanh squash).
+      gumbel_temperature: tau of the Gumbel-softmax relaxation (gradient path only).
+    """
+
+    hidden: tuple[int, ...] = (256, 256)
+    log_std_min: float = -5.0
+    log_std_max: float = 2.0
+    gumbel_temperature: float = 1.0
+
+
+@struct.dataclass
+class ActorOutput:
+    """Policy parameters of all agents.
+
+    Attributes:
+      mean: ``[n, width]`` Gaussian mean (pre-tanh).
+      log_std: ``[n, width]`` Gaussian log-std in [log_std_min, log_std_max].
+      logits: ``[n, width, max_choices]`` categorical logits of discrete dims.
+    """
+
+    mean: jax.Array
+    log_std: jax.Array
+    logits: jax.Array
+
+
+class AgentActor(nn.Module):
+    """One sub-space's actor: ``obs [obs_size] -> (mean [width], log_std [width], logits [width, C])``."""
+
+    config: ActorConfig
+    action_width: int
+    max_choices: int
+
+    @nn.compact
+    def __call__(self, obs: jax.Array):
+        w, C = self.action_width, self.max_choices
+        raw = MLP(tuple(self.config.hidden), w * (2 + C), name="mlp")(obs)
+        mean, raw_log_std, logits = raw[:w], raw[w : 2 * w], raw[2 * w :].reshape(w, C)
+        lo, hi = self.config.log_std_min, self.config.log_std_max
+        log_std = lo + 0.5 * (hi - lo) * (jnp.tanh(raw_log_std) + 1.0)
+        return mean, log_std, logits
+
+
+class Actors(nn.Module):
+    """All n actors, params stacked on axis 0 under ``params["agents"]``.
+
+    ``__call__(obs [obs_size]) -> ActorOutput`` (every agent sees the shared observation).
+    """
+
+    config: ActorConfig
+    n_agents: int
+    action_width: int
+    max_choices: int
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> ActorOutput:
+        stacked = nn.vmap(
+            AgentActor,
+            variable_axes={"params": 0},
+            split_rngs={"params": True},
+            in_axes=None,
+            out_axes=0,
+            axis_size=self.n_agents,
+        )
+        mean, log_std, logits = stacked(self.config, self.action_width, max(self.max_choices, 1), name="agents")(obs)
+        return ActorOutput(mean, log_std, logits)
+
+
+def _grid(n_choices: jax.Array, max_choices: int) -> tuple[jax.Array, jax.Array]:
+    """Normalised grid values ``[..., C]`` (index/steps*2-1, as ``CompositeSpace``) and validity."""
+    idx = jnp.arange(max_choices, dtype=jnp.float32)
+    steps = jnp.maximum(n_choices - 1, 1).astype(jnp.float32)[..., None]
+    return idx / steps * 2.0 - 1.0, idx < n_choices[..., None]
+
+
+def sample_actions(
+    out: ActorOutput,
+    dim_mask: jax.Array,
+    n_choices: jax.Array,
+    key: jax.Array,
+    deterministic: bool = False,
+    temperature: float = 1.0,
+) -> tuple[jax.Array, jax.Array]:
+    """Sample all agents' actions and their log-probs (reparameterised, differentiable).
+
+    Continuous dims: ``a = tanh(u), u ~ N(mean, std)``, log-prob
+    ``log N(u) - log(1 - tanh(u)^2)`` (the tanh change of variables).
+    Discrete dims: Gumbel-max picks a grid index k exactly (forward value
+    ``-1 + 2k/(n_choices-1)``); the gradient flows through the Gumbel-softmax relaxation
+    (straight-through); log-prob ``log_softmax(logits)[k]`` over the ``n_choices`` valid
+    values (choices >= n_choices excluded).
+    ``deterministic``: ``tanh(mean)`` and ``argmax(logits)`` (log-probs of those actions).
+
+    Args:
+      out: ActorOutput with ``[n, width]`` / ``[n, width, C]`` leaves.
+      dim_mask: ``[n, width]`` bool, real columns.
+      n_choices: ``[n, width]`` int, number of grid values of a discrete column, 0 otherwise.
+      key: PRNG key.
+      temperature: Gumbel-softmax tau (``ActorConfig.gumbel_temperature``).
+
+    Returns:
+      ``(action [n, width], log_prob [n])``: padded columns exactly 0, log-probs summed over
+      each agent's valid columns.
+    """
+    dim_mask = jnp.asarray(dim_mask, bool)
+    n_choices = jnp.asarray(n_choices, jnp.int32)
+    discrete = dim_mask & (n_choices > 0)
+    continuous = dim_mask & (n_choices <= 0)
+    key_normal, key_gumbel = jax.random.split(key)
+
+    # Continuous: tanh-Gaussian.
+    std = jnp.exp(out.log_std)
+    noise = jnp.zeros_like(out.mean) if deterministic else jax.random.normal(key_normal, out.mean.shape)
+    u = out.mean + std * noise
+    log_normal = -0.5 * jnp.square(noise) - out.log_std - 0.5 * math.log(2.0 * math.pi)
+    log_det = 2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u))  # log(1 - tanh(u)^2), stable
+    cont_value, cont_logp = jnp.tanh(u), log_normal - log_det
+
+    # Discrete: straight-through Gumbel-softmax over the valid grid values.
+    C = out.logits.shape[-1]
+    grid, valid = _grid(n_choices, C)
+    logits = jnp.where(valid, out.logits, -1e9)  # exp underflows to exactly 0 in float32
+    log_p = jax.nn.log_softmax(logits, -1)
+    gumbel = jnp.zeros_like(logits) if deterministic else jax.random.gumbel(key_gumbel, logits.shape)
+    k = jnp.argmax(jnp.where(valid, logits + gumbel, -jnp.inf), -1)
+    hard_value = jnp.take_along_axis(grid, k[..., None], -1)[..., 0]
+    soft_value = jnp.sum(jax.nn.softmax((logits + gumbel) / temperature, -1) * grid, -1)
+    # Straight-through: forward exactly the grid value (x - x is exactly 0, whereas
+    # (hard + soft) - soft is not), gradient of the relaxed value.
+    disc_value = hard_value + (soft_value - jax.lax.stop_gradient(soft_value))
+    disc_logp = jnp.take_along_axis(log_p, k[..., None], -1)[..., 0]
+
+    action = jnp.where(discrete, disc_value, jnp.where(continuous, cont_value, 0.0))
+    log_prob = jnp.sum(jnp.where(discrete, disc_logp, 0.0) + jnp.where(continuous, cont_logp, 0.0), -1)
+    return action, log_prob
+
+
+def grow_agents(params: Any, new_params: Any) -> Any:
+    """Concatenate stacked agent params along axis 0: ``n`` old + ``n_new`` new actors.
+
+    ``params`` and ``new_params`` are ``Actors`` params (same config / width / max_choices)
+    for n and n_new agents, e.g. ``Actors(cfg, n_new, ...).init(key, obs)["params"]``; the
+    result is the params of ``Actors(cfg, n + n_new, ...)`` with the old agents first (§4.3).
+    """
+    old_shapes = jax.tree_util.tree_map(lambda x: x.shape[1:], params)
+    new_shapes = jax.tree_util.tree_map(lambda x: x.shape[1:], new_params)
+    if old_shapes != new_shapes:
+        raise ValueError("grow_agents: the new actors' params differ in shape from the old ones (check hidden sizes, action_width, max_choices)")
+    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b], 0), params, new_params)
+
+
+def select_agents(params: Any, index: Any) -> Any:
+    """The stacked params of the agents at ``index`` (int array), e.g. to reorder or drop."""
+    return jax.tree_util.tree_map(lambda x: x[jnp.asarray(index)], params)

@@ -1,0 +1,204 @@
+"""The centralised graph critic of SCORE (§4.2, Fig. 4) and its twin.
+
+For ONE sample (the learner vmaps over the batch):
+
+    e_o   = q_phi(o)                    state encoder            (frozen HVAE when asrl=True)
+    e_a,i = mean of q_psi(z | o, a_i, c_i)  action encoder       (frozen HVAE when asrl=True)
+    e_i   = p_w(e_o, e_a,i)             pairwise interaction MLP          -> params["p_w"]
+    e^(m) = m masked GAT layers, Theta^(l) = MLP(s^t) (hypernet=True)    -> params["hyper"]
+                                  or plain learned weights (hypernet=False) -> params["gat"]
+    Q     = f_xi(Mean_{active i} e_i^(m))                                  -> params["f_xi"]
+
+With ``asrl=True`` the HVAE parameters are an ARGUMENT (wrapped in ``stop_gradient``), never
+part of the critic's parameters: they are frozen by construction. With ``asrl=False`` the
+critic owns an encoder of the same architecture (params["encoder"]) trained with it, and
+ignores ``hvae_params``; ``c`` is still an input (pass e.g. ``asrl.random_space_codes``).
+Transfer (§4.3) fine-tunes ``FINETUNE_SUBTREES`` only (see ``finetune_mask``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from score_jax.networks.gat import AGGREGATIONS, flatten_gat_weights, gat_num_params, gat_stack, init_gat_weights, unflatten_gat_weights
+from score_jax.networks.hvae import HVAE, HVAEConfig
+from score_jax.networks.mlp import MLP
+
+FINETUNE_SUBTREES = ("p_w", "gat", "hyper", "f_xi")
+
+
+@dataclasses.dataclass(frozen=True)
+class CriticConfig:
+    """Critic sizes and the ablation switches of the paper's Table (§5.4).
+
+    Attributes:
+      hidden: hidden width of p_w and f_xi.
+      agent_dim: width of the agent embeddings e_i and of every GAT layer.
+      gat_layers: m, the number of GAT layers.
+      aggregation: ``"attention"`` (GAT), ``"mean"`` or ``"sum"`` over active agents.
+      hypernet: GAT weights from a hypernetwork of the state (True) or plain params (False).
+      asrl: use the frozen pre-trained HVAE encoders (True) or own encoders trained from
+        scratch with the critic (False).
+      hyper_hidden: hidden width of the hypernetwork MLP.
+    """
+
+    hidden: int = 128
+    agent_dim: int = 64
+    gat_layers: int = 2
+    aggregation: Literal["attention", "mean", "sum"] = "attention"
+    hypernet: bool = True
+    asrl: bool = True
+    hyper_hidden: int = 64
+
+    def __post_init__(self):
+        if self.aggregation not in AGGREGATIONS:
+            raise ValueError(f"unknown aggregation {self.aggregation!r}; choose one of {AGGREGATIONS}")
+        if self.gat_layers < 1:
+            raise ValueError(f"gat_layers must be >= 1, got {self.gat_layers}")
+
+
+class GATParams(nn.Module):
+    """Plain learned GAT weights (``hypernet=False``), stored flat like the hypernet's output."""
+
+    dims: tuple[int, ...]
+
+    @nn.compact
+    def __call__(self) -> jax.Array:
+        init = lambda key, shape: flatten_gat_weights(init_gat_weights(key, self.dims))
+        return self.param("weights", init, (gat_num_params(self.dims),))
+
+
+class HyperNet(nn.Module):
+    """Theta^(l) = MLP(s^t) (§4.2): ``obs [obs_size] -> flat GAT weights``.
+
+    The output layer's bias is initialised to a Glorot sample of the GAT weights and its
+    kernel small, so at initialisation the generated weights are a well-scaled GAT plus a
+    state-dependent perturbation (a plain lecun output would give theta entries of O(1),
+    far too large for a d x d map).
+    """
+
+    dims: tuple[int, ...]
+    hidden: int
+
+    @nn.compact
+    def __call__(self, state: jax.Array) -> jax.Array:
+        size = gat_num_params(self.dims)
+        h = nn.relu(nn.Dense(self.hidden, name="dense_0")(state))
+        bias_init = lambda key, shape, dtype=jnp.float32: flatten_gat_weights(init_gat_weights(key, self.dims)).astype(dtype)
+        kernel_init = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
+        return nn.Dense(size, kernel_init=kernel_init, bias_init=bias_init, name="out")(h)
+
+
+def _frozen_hvae(hvae_config: HVAEConfig, obs_size: int, action_width: int) -> HVAE:
+    # parent=None: an unbound module, so calling .apply inside the critic does not adopt it
+    # as a submodule (its params stay out of the critic's tree).
+    return HVAE(hvae_config, obs_size, action_width, parent=None)
+
+
+class GraphCritic(nn.Module):
+    """Q(o, {a_i}) for ONE sample over n agents (padded / failed ones masked)."""
+
+    config: CriticConfig
+    hvae_config: HVAEConfig
+    obs_size: int
+    action_width: int
+
+    def _gat_dims(self) -> tuple[int, ...]:
+        return (self.config.agent_dim,) * (self.config.gat_layers + 1)
+
+    @nn.compact
+    def __call__(
+        self,
+        obs: jax.Array,
+        actions: jax.Array,
+        dim_mask: jax.Array,
+        c: jax.Array,
+        mask: jax.Array,
+        hvae_params: Any = None,
+        return_attention: bool = False,
+    ):
+        """Args:
+          obs: ``[obs_size]`` observation (shared by all sub-spaces).
+          actions: ``[n, width]`` normalised actions, padded columns zero.
+          dim_mask: ``[n, width]`` bool real columns.
+          c: ``[n, c_dim]`` sub-space embeddings.
+          mask: ``[n]`` bool, active agents (failed / dropped / padded agents False).
+          hvae_params: the HVAE ``"params"`` (required when ``asrl=True``, ignored otherwise).
+          return_attention: also return the attention weights.
+
+        Returns:
+          ``q []``, or ``(q [], alpha [m, n, n])`` with ``return_attention``.
+        """
+        cfg = self.config
+        if cfg.asrl:
+            if hvae_params is None:
+                raise ValueError("CriticConfig.asrl=True needs the trained HVAE params (hvae_params); got None")
+            frozen = jax.lax.stop_gradient(hvae_params)
+            hvae = _frozen_hvae(self.hvae_config, self.obs_size, self.action_width)
+            e_o = hvae.apply({"params": frozen}, obs, method=HVAE.encode_obs)
+            e_a = hvae.apply({"params": frozen}, obs, actions, dim_mask, c, method=HVAE.encode_action)[0]
+        else:
+            encoder = HVAE(self.hvae_config, self.obs_size, self.action_width, name="encoder")
+            e_o = encoder.encode_obs(obs)
+            e_a = encoder.encode_action(obs, actions, dim_mask, c)[0]
+        n = actions.shape[0]
+        pair = jnp.concatenate([jnp.broadcast_to(e_o, (n, e_o.shape[-1])), e_a], -1)
+        e = MLP((cfg.hidden,), cfg.agent_dim, name="p_w")(pair)  # e_i = p_w(e_o, e_a,i)
+
+        dims = self._gat_dims()
+        if cfg.hypernet:
+            flat = HyperNet(dims, cfg.hyper_hidden, name="hyper")(obs)
+        else:
+            flat = GATParams(dims, name="gat")()
+        x, alpha = gat_stack(unflatten_gat_weights(flat, dims), e, mask, cfg.aggregation)
+
+        w = jnp.asarray(mask, jnp.float32)[:, None]
+        pooled = jnp.sum(x * w, 0) / jnp.maximum(jnp.sum(w), 1.0)  # Mean over active agents
+        q = MLP((cfg.hidden,), 1, name="f_xi")(pooled)[0]
+        return (q, alpha) if return_attention else q
+
+    def attention_weights(self, obs, actions, dim_mask, c, mask, hvae_params=None) -> jax.Array:
+        """``alpha [m, n, n]`` of every GAT layer (rows: receiver i, columns: sender j)."""
+        return self(obs, actions, dim_mask, c, mask, hvae_params, return_attention=True)[1]
+
+
+class TwinCritic(nn.Module):
+    """Two independent GraphCritics (params stacked on a leading axis of 2): ``-> q [2]``.
+
+    Parameters live under ``params["critics"]`` with the GraphCritic's subtrees inside.
+    """
+
+    config: CriticConfig
+    hvae_config: HVAEConfig
+    obs_size: int
+    action_width: int
+
+    @nn.compact
+    def __call__(self, obs, actions, dim_mask, c, mask, hvae_params=None):
+        twin = nn.vmap(
+            GraphCritic,
+            variable_axes={"params": 0},
+            split_rngs={"params": True},
+            in_axes=None,
+            out_axes=0,
+            axis_size=2,
+        )
+        return twin(self.config, self.hvae_config, self.obs_size, self.action_width, name="critics")(obs, actions, dim_mask, c, mask, hvae_params)
+
+
+def finetune_mask(params: Any) -> Any:
+    """Pytree of bools over critic params (GraphCritic or TwinCritic): True on the subtrees
+    transfer fine-tunes (``p_w``, ``gat`` / ``hyper``, ``f_xi``, §4.3), False elsewhere
+    (the critic's own encoder when ``asrl=False``). Use with ``optax.masked`` or
+    ``optax.multi_transform``."""
+
+    def mark(path, _):
+        names = [getattr(p, "key", getattr(p, "name", None)) for p in path]
+        return any(name in FINETUNE_SUBTREES for name in names)
+
+    return jax.tree_util.tree_map_with_path(mark, params)
