@@ -2,8 +2,9 @@
 
 - ``AutoReset``: restarts an episode in place when it ends, so a ``lax.scan`` rollout of a
   vmapped batch never stops (the learner's rollout and every baseline use it).
-- ``BraxFlatEnv``: exposes a CompositeEnv to ``brax.training.agents`` (PPO, SAC) as a flat
-  ``[total_dim]`` action in [-1, 1]; padded columns never exist on that side.
+
+``envs.brax_flat.BraxFlatEnv`` (its own module, so that importing this one never imports brax
+and MuJoCo) exposes a CompositeEnv to ``brax.training.agents``.
 """
 
 from __future__ import annotations
@@ -50,38 +51,3 @@ class AutoReset:
         merged = jax.tree.map(lambda f, s: jnp.where(done, f, s), fresh, inner)
         merged = merged.replace(reward=inner.reward, done=inner.done, truncated=inner.truncated, metrics=inner.metrics)
         return merged.replace(sim=AutoResetSim(merged.sim, key)), inner.obs
-
-
-def _brax_env_base():
-    from brax.envs.base import Env
-
-    return Env
-
-
-class BraxFlatEnv(_brax_env_base()):
-    """A CompositeEnv seen by brax: ``action [total_dim]`` in [-1, 1] -> ``[n, max_dim]``."""
-
-    def __init__(self, env: CompositeEnv):
-        self.env = env
-
-    def reset(self, rng: jax.Array):
-        from brax.envs.base import State
-
-        s = self.env.reset(rng)
-        return State(pipeline_state=s, obs=s.obs, reward=s.reward, done=s.done, metrics={}, info={})
-
-    def step(self, state, action: jax.Array):
-        s = self.env.step(state.pipeline_state, self.env.space.unflatten(action))
-        return state.replace(pipeline_state=s, obs=s.obs, reward=s.reward, done=s.done)
-
-    @property
-    def observation_size(self) -> int:
-        return self.env.observation_size
-
-    @property
-    def action_size(self) -> int:
-        return self.env.space.total_dim
-
-    @property
-    def backend(self) -> str:
-        return "jax"

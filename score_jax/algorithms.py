@@ -51,12 +51,19 @@ def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> 
     else:
         frozen = score.frozen_template(env, agent_index, sc, width)
     consts = score.agent_consts(env.space, agent_index, width, frozen)
-    update = score.make_update(nets)
+    optimizers = score.make_optimizers(sc)
+    if cfg.transfer_new:  # a fine-tuning run grown from a subset run (§4.3)
+        from score_jax import transfer
+
+        new = set(cfg.transfer_new.split(","))
+        trainable = np.asarray([cfg.finetune_old_actors or env.space.names[i] in new for i in agent_index])
+        optimizers = transfer.transfer_optimizers(sc, trainable, sc.critic.asrl)
+    update = score.make_update(nets, optimizers)
 
     def act(state, obs, key, deterministic):
         return nets.policy_fn(state.actor, state.consts, obs, key, deterministic)[0]
 
-    off = OffPolicyAlgorithm("score", lambda k: score.init_state(nets, k, consts), act, update, score.hyper(sc), len(agent_index), width)
+    off = OffPolicyAlgorithm("score", lambda k: score.init_state(nets, k, consts, optimizers), act, update, score.hyper(sc), len(agent_index), width)
     policy = lambda agent: (lambda env_state, k: act(agent, env_state.obs, k, True))
     return Algorithm("score", off, policy, nets)
 

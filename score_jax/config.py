@@ -48,6 +48,12 @@ class TrainConfig:
     """No progress bar."""
     data_parallel: bool = True
     """Shard environments and batches over all devices when there are several."""
+    transfer_from: str = ""
+    """(Set by transfer.py) the run this one was grown from (§4.3)."""
+    transfer_new: str = ""
+    """(Set by transfer.py) comma-separated sub-spaces that are new in this run: their actors train from scratch."""
+    finetune_old_actors: bool = False
+    """In a transfer run, also fine-tune the actors of the sub-spaces seen before (default: frozen)."""
     off_policy: OffPolicyConfig = OffPolicyConfig()
     """Rollout, replay and update schedule."""
     score: ScoreConfig = ScoreConfig()

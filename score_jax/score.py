@@ -41,15 +41,23 @@ class ScoreConfig:
     action_width: int = 0
     """Padded action width; 0 = the environment's full max_dim (so transfer can add sub-spaces)."""
     actor_lr: float = 3e-4
+    """Adam step size of the actors."""
     critic_lr: float = 3e-4
+    """Adam step size of the critics (and of c_i when ASRL is off)."""
     alpha_lr: float = 3e-4
+    """Adam step size of log alpha (automatic entropy tuning)."""
     init_alpha: float = 0.1
+    """Initial entropy temperature alpha."""
     gamma: float = 0.99
+    """Discount factor."""
     tau: float = 0.005
+    """Polyak rate of the target critics (Alg. 1 line 15: rho = 1 - tau)."""
     dropnode_prob: float = 0.1
     """Probability that an agent is masked in the critic during an update (DropNode, §4.2)."""
     reward_scale: float = 1.0
+    """Rewards are multiplied by this in the critic target (keeps Q near unit scale)."""
     grad_clip: float = 10.0
+    """Global-norm gradient clipping of actors and critics."""
 
 
 @struct.dataclass
@@ -124,7 +132,7 @@ def make_optimizers(cfg: ScoreConfig):
     )
 
 
-def init_state(nets: ScoreNetworks, key: jax.Array, consts: AgentConsts) -> SACState:
+def init_state(nets: ScoreNetworks, key: jax.Array, consts: AgentConsts, optimizers=None) -> SACState:
     """Fresh actor/critic parameters, targets, optimiser states and log alpha."""
     cfg = nets.config
     key_actor, key_critic, key_c = jax.random.split(key, 3)
@@ -135,7 +143,7 @@ def init_state(nets: ScoreNetworks, key: jax.Array, consts: AgentConsts) -> SACS
     c = consts.critic_inputs.c if cfg.critic.asrl else free_c
     net = nets.critic.init(key_critic, obs, actions, consts.dim_mask, c, consts.valid, consts.critic_inputs.hvae_params)["params"]
     critic = CriticVars(net, free_c)
-    actor_opt, critic_opt, alpha_opt = make_optimizers(cfg)
+    actor_opt, critic_opt, alpha_opt = optimizers or make_optimizers(cfg)
     log_alpha = jnp.log(jnp.asarray(cfg.init_alpha, jnp.float32))
     return SACState(
         actor=actor, critic=critic, target_critic=critic, log_alpha=log_alpha,
@@ -148,9 +156,9 @@ def hyper(cfg: ScoreConfig) -> SACHyper:
     return SACHyper(gamma=f(cfg.gamma), tau=f(cfg.tau), dropnode_prob=f(cfg.dropnode_prob), reward_scale=f(cfg.reward_scale))
 
 
-def make_update(nets: ScoreNetworks):
+def make_update(nets: ScoreNetworks, optimizers=None):
     """The one-jit SAC update of Alg. 1 lines 11-15 for these networks."""
-    return make_sac_update(nets.policy_fn, nets.q_fn, *make_optimizers(nets.config))
+    return make_sac_update(nets.policy_fn, nets.q_fn, *(optimizers or make_optimizers(nets.config)))
 
 
 def pretrain(env, agent_index, cfg: ScoreConfig, width: int, key: jax.Array, log=print, fixed_default=None) -> FrozenInputs:

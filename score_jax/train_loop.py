@@ -102,8 +102,13 @@ def _truncate_csv(path: str, max_env_steps: int) -> None:
         w.writerows(rows)
 
 
-def train(cfg: TrainConfig, log=print, on_epoch=None) -> Run:
-    """Train (or resume) a run; returns the final ``Run``. ``on_epoch(run, row)`` is a test hook."""
+def train(cfg: TrainConfig, log=print, on_epoch=None, initial_agent=None) -> Run:
+    """Train (or resume) a run; returns the final ``Run``.
+
+    ``initial_agent(run, fresh_agent_state) -> agent_state`` replaces the freshly initialised
+    algorithm state of a new run (transfer grows it from a trained run); ``on_epoch(run, row)``
+    is called after every epoch.
+    """
     if cfg.resume:
         meta = Checkpointer(cfg.resume).read_meta()
         saved = from_dict(TrainConfig, meta["config"])
@@ -113,8 +118,10 @@ def train(cfg: TrainConfig, log=print, on_epoch=None) -> Run:
     total = resolved_total_steps(cfg)
     key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
 
-    run = build(cfg, key_build, run_dir, restoring=bool(cfg.resume), log=log)
+    run = build(cfg, key_build, run_dir, restoring=bool(cfg.resume) or initial_agent is not None, log=log)
     state = run.trainer.init(key_train)
+    if initial_agent is not None and not cfg.resume:
+        state = run.trainer.place(state.replace(agent=initial_agent(run, state.agent)))
     ckpt = Checkpointer(run_dir)
     csv_path = os.path.join(run_dir, "metrics.csv")
     if cfg.resume:

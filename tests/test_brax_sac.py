@@ -9,7 +9,7 @@ import jax
 import numpy as np
 
 import envs
-from envs.wrappers import BraxFlatEnv
+from envs.brax_flat import BraxFlatEnv
 
 
 def test_brax_sac_trains_on_the_greenhouse_through_the_flat_wrapper():

@@ -28,11 +28,12 @@ class ActorConfig:
 
     Attributes:
       hidden: hidden widths of each agent's MLP.
-      log_std_min, log_std_max: range of the Gaussian log-std (smooth tanh squash).
+      log_std_min: lower end of the Gaussian log-std (smooth squash).
+      log_std_max: upper end of the Gaussian log-std.
       gumbel_temperature: tau of the Gumbel-softmax relaxation (gradient path only).
     """
 
-    hidden: tuple[int, ...] = (256, 256)
+    hidden: tuple[int, ...] = (128, 128)
     log_std_min: float = -5.0
     log_std_max: float = 2.0
     gumbel_temperature: float = 1.0

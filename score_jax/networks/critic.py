@@ -47,13 +47,13 @@ class CriticConfig:
       hyper_hidden: hidden width of the hypernetwork MLP.
     """
 
-    hidden: int = 128
-    agent_dim: int = 64
+    hidden: int = 64
+    agent_dim: int = 32
     gat_layers: int = 2
     aggregation: Literal["attention", "mean", "sum"] = "attention"
     hypernet: bool = True
     asrl: bool = True
-    hyper_hidden: int = 64
+    hyper_hidden: int = 32
 
     def __post_init__(self):
         if self.aggregation not in AGGREGATIONS:

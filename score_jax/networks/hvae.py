@@ -68,10 +68,10 @@ class HVAEConfig:
       min_log_std: lower bound of every log-std (likelihoods and posteriors).
     """
 
-    obs_embed_dim: int = 64
+    obs_embed_dim: int = 32
     space_embed_dim: int = 16
     latent_dim: int = 16
-    hidden: int = 128
+    hidden: int = 64
     predict_steps: int = 4
     kl_weight: float = 1.0
     action_recon_weight: float = 1.0

@@ -1,0 +1,128 @@
+"""Transfer to unseen sub-action spaces (§4.3, Fig. 5).
+
+Starting from a run trained on a subset of sub-spaces:
+1. embed the unseen sub-spaces with the FROZEN HVAE (their observation sets are collected in
+   the environment that now has them; ``asrl.embed_new_spaces``);
+2. grow the agent axis: the old actors keep their parameters, the new actors start fresh; the
+   agents are re-ordered into the space's order, so the result is an ordinary run over the
+   new sub-space set (the graph critic is permutation invariant);
+3. fine-tune only p_w, the GAT (or its hypernetwork) and f_xi of the critic, train the new
+   actors, and keep the old actors frozen (or fine-tune them with ``finetune_old_actors``).
+
+Frozen parameters get exactly zero updates, so they stay bitwise unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from score_jax import asrl
+from score_jax.networks.actor import Actors, grow_agents, select_agents
+from score_jax.networks.critic import finetune_mask
+from score_jax.sac import SACState
+
+
+def freeze_agent_rows(trainable) -> optax.GradientTransformation:
+    """Zero the updates of the agents (leading axis of stacked params) where ``trainable`` is False."""
+    trainable = np.asarray(trainable, bool)
+
+    def init(params):
+        return optax.EmptyState()
+
+    def update(updates, state, params=None):
+        scale = lambda u: u * jnp.asarray(trainable, u.dtype).reshape((-1,) + (1,) * (u.ndim - 1))
+        return jax.tree.map(scale, updates), state
+
+    return optax.GradientTransformation(init, update)
+
+
+def transfer_optimizers(cfg, trainable_agents, asrl_on: bool):
+    """(actor, critic, alpha) optimisers of a fine-tuning run (§4.3).
+
+    Actors: Adam, then the rows of frozen agents zeroed. Critic: Adam on p_w, GAT / hypernet
+    and f_xi (and the free codes c_i when ASRL is off); every other subtree frozen.
+    """
+    clip = optax.clip_by_global_norm(cfg.grad_clip)
+    actor_opt = optax.chain(clip, optax.adam(cfg.actor_lr), freeze_agent_rows(trainable_agents))
+
+    def labels(critic_vars):
+        net = jax.tree.map(lambda t: "train" if t else "freeze", finetune_mask(critic_vars.net))
+        c = None if critic_vars.c is None else jax.tree.map(lambda _: "train", critic_vars.c)
+        return critic_vars.replace(net=net, c=c)
+
+    critic_opt = optax.multi_transform(
+        {"train": optax.chain(clip, optax.adam(cfg.critic_lr)), "freeze": optax.set_to_zero()}, labels
+    )
+    return actor_opt, critic_opt, optax.adam(cfg.alpha_lr)
+
+
+@dataclasses.dataclass(frozen=True)
+class TransferPlan:
+    """Which agents of the grown run were seen before, and where they come from."""
+
+    agent_index: np.ndarray  # [n_new_total] sub-spaces of the env, in the space's order
+    is_new: np.ndarray  # [n_new_total] bool
+    source_row: np.ndarray  # [n_new_total] row in the source run's agents (-1 for new ones)
+
+    @property
+    def new_positions(self) -> np.ndarray:
+        return np.flatnonzero(self.is_new)
+
+
+def plan(source_agent_index, target_agent_index) -> TransferPlan:
+    source = [int(i) for i in source_agent_index]
+    target = sorted(int(i) for i in target_agent_index)
+    missing = [i for i in source if i not in target]
+    if missing:
+        raise ValueError(f"the target sub-spaces must include every trained one; missing indices {missing}")
+    if len(target) == len(source):
+        raise ValueError("the target has no new sub-space: nothing to transfer")
+    row = np.asarray([source.index(i) if i in source else -1 for i in target])
+    return TransferPlan(np.asarray(target), row < 0, row)
+
+
+def grow_agent(source: SACState, template: SACState, p: TransferPlan, new_c, key: jax.Array) -> SACState:
+    """The grown algorithm state: old actors and critic from ``source``, fresh new actors.
+
+    ``template`` is a fresh state of the grown run (right shapes, fresh optimiser states of
+    the fine-tuning optimisers); ``new_c`` ``[n_new, c_dim]`` are the frozen-HVAE embeddings
+    of the new sub-spaces (None when ASRL is off).
+    """
+    n_src = jax.tree.leaves(source.actor)[0].shape[0]
+    rows = np.arange(len(p.agent_index))
+    # Stack [source agents; template agents] and pick, for every target row, the source row of an
+    # old sub-space or the fresh template row of a new one.
+    pick = np.where(p.is_new, n_src + rows, p.source_row)
+    actor = select_agents(grow_agents(source.actor, template.actor), pick)
+    new_rank = np.cumsum(p.is_new) - 1  # index among the new sub-spaces
+    pick_c = np.where(p.is_new, n_src + new_rank, p.source_row)
+    frozen = template.consts.critic_inputs
+    if frozen.c is not None:
+        c_all = jnp.concatenate([source.consts.critic_inputs.c, new_c], 0)[pick_c]
+        frozen = frozen.replace(hvae_params=source.consts.critic_inputs.hvae_params, c=c_all)
+
+    def grow_free_c(src_c):  # ASRL off: the learned codes of old agents, fresh codes for new ones
+        return None if src_c is None else jnp.concatenate([src_c, template.critic.c], 0)[pick]
+
+    critic = source.critic.replace(c=grow_free_c(source.critic.c))
+    target = source.target_critic.replace(c=grow_free_c(source.target_critic.c))
+    return template.replace(
+        actor=actor, critic=critic, target_critic=target, log_alpha=source.log_alpha,
+        consts=template.consts.replace(critic_inputs=frozen),
+    )
+
+
+def embed_new(src_run, env, p: TransferPlan, key: jax.Array):
+    """Frozen-HVAE embeddings ``[n_new, c_dim]`` of the new sub-spaces (None when ASRL is off)."""
+    sc = src_run.config.score
+    if not sc.critic.asrl:
+        return None
+    nets = src_run.algo.networks
+    params = src_run.state.agent.consts.critic_inputs.hvae_params
+    new = [int(i) for i in p.agent_index[p.is_new]]
+    return asrl.embed_new_spaces(env, nets.hvae, params, key, new, sc.asrl_k, sc.asrl_j)
