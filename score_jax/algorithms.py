@@ -38,10 +38,15 @@ def action_width(cfg, env) -> int:
     return width
 
 
+def discrete_width(space) -> int:
+    """Most dims of any discrete sub-space of the (full) environment space."""
+    return max([s.dim for s in space.subspaces if s.kind == "discrete"] + [1])
+
+
 def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> Algorithm:
     sc = cfg.score
     width = action_width(cfg, env)
-    nets = score.ScoreNetworks(sc, env.observation_size, len(agent_index), width, env.space.max_choices)
+    nets = score.ScoreNetworks(sc, env.observation_size, len(agent_index), width, env.space.max_choices, discrete_width(env.space))
     fixed = np.ones(env.space.n, bool)
     fixed[np.asarray(agent_index)] = False
     key_asrl, _ = jax.random.split(key)
@@ -63,7 +68,7 @@ def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> 
     def act(state, obs, key, deterministic):
         return nets.policy_fn(state.actor, state.consts, obs, key, deterministic)[0]
 
-    off = OffPolicyAlgorithm("score", lambda k: score.init_state(nets, k, consts, optimizers), act, update, score.hyper(sc), len(agent_index), width)
+    off = OffPolicyAlgorithm("score", lambda k: score.init_state(nets, k, consts, optimizers), act, update, score.hyper(sc, env), len(agent_index), width)
     policy = lambda agent: (lambda env_state, k: act(agent, env_state.obs, k, True))
     return Algorithm("score", off, policy, nets)
 

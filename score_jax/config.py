@@ -77,7 +77,7 @@ class TrainConfig:
 
 
 # Budgets that finish on a laptop CPU (see README for the measured wall times).
-PRESET_TOTAL_STEPS = {"greenhouse": 120_000, "spider": 200_000, "probe": 4_000}
+PRESET_TOTAL_STEPS = {"greenhouse": 200_000, "spider": 200_000, "probe": 4_000}
 
 
 def resolved_total_steps(cfg: TrainConfig) -> int:

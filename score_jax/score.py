@@ -54,8 +54,9 @@ class ScoreConfig:
     """Polyak rate of the target critics (Alg. 1 line 15: rho = 1 - tau)."""
     dropnode_prob: float = 0.1
     """Probability that an agent is masked in the critic during an update (DropNode, §4.2)."""
-    reward_scale: float = 1.0
-    """Rewards are multiplied by this in the critic target (keeps Q near unit scale)."""
+    reward_scale: float = 0.0
+    """Rewards are multiplied by this in the critic target; 0 = the environment's suggestion
+    (``env.reward_scale``: 0.05 for the greenhouse's cumulative reward, else 1)."""
     grad_clip: float = 10.0
     """Global-norm gradient clipping of actors and critics."""
 
@@ -85,10 +86,11 @@ class ScoreNetworks:
     n_agents: int
     width: int
     max_choices: int
+    discrete_width: int = 0
 
     @property
     def actors(self) -> Actors:
-        return Actors(self.config.actor, self.n_agents, self.width, self.max_choices)
+        return Actors(self.config.actor, self.n_agents, self.width, self.max_choices, self.discrete_width)
 
     @property
     def critic(self) -> TwinCritic:
@@ -151,9 +153,10 @@ def init_state(nets: ScoreNetworks, key: jax.Array, consts: AgentConsts, optimiz
     )
 
 
-def hyper(cfg: ScoreConfig) -> SACHyper:
+def hyper(cfg: ScoreConfig, env) -> SACHyper:
     f = lambda x: jnp.asarray(x, jnp.float32)
-    return SACHyper(gamma=f(cfg.gamma), tau=f(cfg.tau), dropnode_prob=f(cfg.dropnode_prob), reward_scale=f(cfg.reward_scale))
+    reward_scale = cfg.reward_scale or getattr(env, "reward_scale", 1.0)
+    return SACHyper(gamma=f(cfg.gamma), tau=f(cfg.tau), dropnode_prob=f(cfg.dropnode_prob), reward_scale=f(reward_scale))
 
 
 def make_update(nets: ScoreNetworks, optimizers=None):

@@ -27,7 +27,7 @@ CFG = ActorConfig(hidden=(16,))
 
 @pytest.fixture(scope="module")
 def actors():
-    model = Actors(CFG, SPACE.n, WIDTH, SPACE.max_choices)
+    model = Actors(CFG, SPACE.n, WIDTH, SPACE.max_choices, discrete_width=2)  # logits only for the first 2 columns
     params = jax.jit(model.init)(jax.random.PRNGKey(0), jnp.zeros(OBS))["params"]
     return model, params
 
@@ -45,7 +45,7 @@ def test_shapes_and_stacked_params(actors):
     model, params = actors
     out = model.apply({"params": params}, jnp.ones(OBS))
     assert out.mean.shape == (SPACE.n, WIDTH) and out.log_std.shape == (SPACE.n, WIDTH)
-    assert out.logits.shape == (SPACE.n, WIDTH, SPACE.max_choices)
+    assert out.logits.shape == (SPACE.n, 2, SPACE.max_choices)
     assert np.all(out.log_std >= CFG.log_std_min) and np.all(out.log_std <= CFG.log_std_max)
     assert all(x.shape[0] == SPACE.n for x in jax.tree_util.tree_leaves(params))
     # independent actors: different params per agent give different outputs
@@ -142,10 +142,10 @@ def test_gradients_flow_through_both_kinds(actors):
 
 def test_grow_agents(actors):
     model, params = actors
-    extra = jax.jit(Actors(CFG, 2, WIDTH, SPACE.max_choices).init)(jax.random.PRNGKey(9), jnp.zeros(OBS))["params"]
+    extra = jax.jit(Actors(CFG, 2, WIDTH, SPACE.max_choices, discrete_width=2).init)(jax.random.PRNGKey(9), jnp.zeros(OBS))["params"]
     grown = grow_agents(params, extra)
     assert all(x.shape[0] == SPACE.n + 2 for x in jax.tree_util.tree_leaves(grown))
-    big = Actors(CFG, SPACE.n + 2, WIDTH, SPACE.max_choices)
+    big = Actors(CFG, SPACE.n + 2, WIDTH, SPACE.max_choices, discrete_width=2)
     obs = jnp.ones(OBS)
     out_big, out_old = jax.jit(big.apply)({"params": grown}, obs), model.apply({"params": params}, obs)
     np.testing.assert_allclose(out_big.mean[: SPACE.n], out_old.mean, rtol=1e-6)

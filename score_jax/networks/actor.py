@@ -46,7 +46,9 @@ class ActorOutput:
     Attributes:
       mean: ``[n, width]`` Gaussian mean (pre-tanh).
       log_std: ``[n, width]`` Gaussian log-std in [log_std_min, log_std_max].
-      logits: ``[n, width, max_choices]`` categorical logits of discrete dims.
+      logits: ``[n, discrete_width, max_choices]`` categorical logits of the first
+        ``discrete_width`` columns (a discrete sub-space's dims are its first columns, so
+        only those can be discrete; columns past them never need logits).
     """
 
     mean: jax.Array
@@ -55,17 +57,18 @@ class ActorOutput:
 
 
 class AgentActor(nn.Module):
-    """One sub-space's actor: ``obs [obs_size] -> (mean [width], log_std [width], logits [width, C])``."""
+    """One sub-space's actor: ``obs [obs_size] -> (mean [width], log_std [width], logits [dw, C])``."""
 
     config: ActorConfig
     action_width: int
     max_choices: int
+    discrete_width: int
 
     @nn.compact
     def __call__(self, obs: jax.Array):
-        w, C = self.action_width, self.max_choices
-        raw = MLP(tuple(self.config.hidden), w * (2 + C), name="mlp")(obs)
-        mean, raw_log_std, logits = raw[:w], raw[w : 2 * w], raw[2 * w :].reshape(w, C)
+        w, C, dw = self.action_width, self.max_choices, self.discrete_width
+        raw = MLP(tuple(self.config.hidden), 2 * w + dw * C, name="mlp")(obs)
+        mean, raw_log_std, logits = raw[:w], raw[w : 2 * w], raw[2 * w :].reshape(dw, C)
         lo, hi = self.config.log_std_min, self.config.log_std_max
         log_std = lo + 0.5 * (hi - lo) * (jnp.tanh(raw_log_std) + 1.0)
         return mean, log_std, logits
@@ -75,12 +78,15 @@ class Actors(nn.Module):
     """All n actors, params stacked on axis 0 under ``params["agents"]``.
 
     ``__call__(obs [obs_size]) -> ActorOutput`` (every agent sees the shared observation).
+    ``discrete_width``: the most dims of any discrete sub-space (0 = ``action_width``); it
+    sizes the logits head, which otherwise dominates the actor's cost.
     """
 
     config: ActorConfig
     n_agents: int
     action_width: int
     max_choices: int
+    discrete_width: int = 0
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> ActorOutput:
@@ -92,7 +98,8 @@ class Actors(nn.Module):
             out_axes=0,
             axis_size=self.n_agents,
         )
-        mean, log_std, logits = stacked(self.config, self.action_width, max(self.max_choices, 1), name="agents")(obs)
+        dw = min(self.discrete_width or self.action_width, self.action_width)
+        mean, log_std, logits = stacked(self.config, self.action_width, max(self.max_choices, 1), dw, name="agents")(obs)
         return ActorOutput(mean, log_std, logits)
 
 
@@ -122,7 +129,7 @@ def sample_actions(
     ``deterministic``: ``tanh(mean)`` and ``argmax(logits)`` (log-probs of those actions).
 
     Args:
-      out: ActorOutput with ``[n, width]`` / ``[n, width, C]`` leaves.
+      out: ActorOutput with ``[n, width]`` / ``[n, dw, C]`` leaves.
       dim_mask: ``[n, width]`` bool, real columns.
       n_choices: ``[n, width]`` int, number of grid values of a discrete column, 0 otherwise.
       key: PRNG key.
@@ -148,8 +155,10 @@ def sample_actions(
 
     # Discrete: straight-through Gumbel-softmax over the valid grid values.
     C = out.logits.shape[-1]
+    pad = out.mean.shape[-1] - out.logits.shape[-2]  # columns past discrete_width are never discrete
+    out_logits = jnp.pad(out.logits, [(0, 0)] * (out.logits.ndim - 2) + [(0, pad), (0, 0)])
     grid, valid = _grid(n_choices, C)
-    logits = jnp.where(valid, out.logits, -1e9)  # exp underflows to exactly 0 in float32
+    logits = jnp.where(valid, out_logits, -1e9)  # exp underflows to exactly 0 in float32
     log_p = jax.nn.log_softmax(logits, -1)
     gumbel = jnp.zeros_like(logits) if deterministic else jax.random.gumbel(key_gumbel, logits.shape)
     k = jnp.argmax(jnp.where(valid, logits + gumbel, -jnp.inf), -1)
