@@ -15,7 +15,8 @@ import tyro
 
 from score_jax.checkpoint import CheckpointError
 from score_jax.config import TrainConfig
-from score_jax.report import final_evaluation, plot_learning_curve
+from score_jax.report import final_evaluation, plot_learning_curve, render_policy
+from score_jax.robustness import run_sweep
 from score_jax.train_loop import NonFiniteError, train
 
 
@@ -29,6 +30,10 @@ def main(cfg: TrainConfig) -> int:
     plot_learning_curve(os.path.join(run.run_dir, "metrics.csv"), os.path.join(run.run_dir, "learning_curve.png"), f"{run.config.algo} on {run.config.env}")
     print(f"learning curve: {os.path.join(run.run_dir, 'learning_curve.png')}")
     final_evaluation(run, run.config.eval_episodes)
+    if run.config.robustness_seeds:
+        run_sweep(run, run.config.robustness_seeds)
+    if run.config.render:
+        render_policy(run, run.config.render_steps, os.path.join(run.run_dir, "render"))
     return 0
 
 

@@ -17,6 +17,7 @@ import os
 from typing import Any
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
 
 from score_jax.spaces import CompositeSpace
@@ -26,6 +27,12 @@ FORMAT_VERSION = 1
 
 class CheckpointError(RuntimeError):
     """A checkpoint is missing, corrupted or does not match what restores it."""
+
+
+def _fill_empty(tree: Any) -> Any:
+    """Orbax cannot write zero-size arrays (MJX data has some): store a 1-element stand-in;
+    ``restore`` puts the template's empty array back."""
+    return jax.tree.map(lambda x: np.zeros((1,), np.asarray(x).dtype) if np.size(x) == 0 else x, tree)
 
 
 def checkpoint_dir(run_dir: str) -> str:
@@ -42,6 +49,7 @@ class Checkpointer:
 
     def save(self, step: int, state: Any, meta: dict) -> None:
         meta = {**meta, "format_version": FORMAT_VERSION, "step": int(step)}
+        state = _fill_empty(state)
         self.manager.save(int(step), args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
         self.manager.wait_until_finished()
 
@@ -62,7 +70,7 @@ class Checkpointer:
         """Restore into the structure, shapes and dtypes of ``template`` (a state built fresh)."""
         step = self._step(step)
         meta = self.read_meta(step)
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, template)
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _fill_empty(template))
         try:
             restored = self.manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
         except Exception as e:
@@ -70,7 +78,8 @@ class Checkpointer:
                 f"checkpoint {self.directory}/{step} could not be restored into the current training state "
                 f"({type(e).__name__}: {str(e)[:300]}); it is corrupted or was written by a different configuration"
             ) from e
-        return restored.state, meta
+        state = jax.tree.map(lambda t, r: t if np.size(t) == 0 else r, template, restored.state)
+        return state, meta
 
     def _step(self, step: int | None) -> int:
         step = self.latest_step() if step is None else step

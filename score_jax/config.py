@@ -44,6 +44,12 @@ class TrainConfig:
     """Episodes per evaluation (each a full season / episode)."""
     eval_every: int = 0
     """Evaluate the deterministic policy every this many env steps; 0 = only at the end."""
+    robustness_seeds: int = 10
+    """Seeds per setting of the robustness sweep run at the end (0 = skip it)."""
+    render: bool = False
+    """Spider only: render an episode of the trained policy to <run-dir>/render (PNG + GIF)."""
+    render_steps: int = 300
+    """Steps of the rendered episode."""
     quiet: bool = False
     """No progress bar."""
     data_parallel: bool = True

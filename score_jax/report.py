@@ -76,3 +76,26 @@ def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(png_path, dpi=110)
     plt.close(fig)
+
+
+def render_policy(run, steps: int, out_dir: str, log=print) -> None:
+    """Render a deterministic episode of the trained policy (Spider) to PNG frames and a GIF."""
+    from envs.spider.render import render_rollout
+    from score_jax.spaces import agents_to_env_action
+
+    env, act = run.env, run.algo.policy(run.state.agent)
+    if not hasattr(env, "mj_model"):
+        raise ValueError(f"rendering needs a MuJoCo environment (spider); {env.name!r} has no body to draw")
+
+    def step(state, key):
+        action = agents_to_env_action(env.space, act(state, key), run.agent_index)
+        nxt = jax.vmap(env.step)(state, action)
+        return nxt, (nxt.sim.data.qpos[0], nxt.done[0])
+
+    state = jax.vmap(env.reset)(jax.random.PRNGKey(run.config.seed + 50_000)[None])
+    _, (qpos, done) = jax.jit(lambda s: jax.lax.scan(step, s, jax.random.split(jax.random.PRNGKey(0), steps)))(state)
+    qpos, done = np.asarray(qpos), np.asarray(done)
+    end = int(np.argmax(done)) + 1 if done.any() else steps
+    qpos = np.concatenate([np.asarray(state.sim.data.qpos), qpos[:end]])
+    files = render_rollout(env.mj_model, qpos, out_dir, fps=1.0 / env.dt)
+    log(f"rendered {len(qpos)} frames to {out_dir} ({', '.join(str(p) for p in files.get('gif', []))})")
