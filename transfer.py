@@ -21,6 +21,7 @@ import tyro
 from score_jax import transfer as tr
 from score_jax.checkpoint import CheckpointError, dump_json
 from score_jax.config import resolved_total_steps
+from score_jax.report import plot_curves
 from score_jax.train_loop import NonFiniteError, resolve_agent_index, restore_run, train
 
 
@@ -99,34 +100,6 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
         log(f"{'scratch':12s}{'':>18s}{result['scratch_converge']['mean']:>11.2f} ± {result['scratch_converge']['std']:<5.1f}")
     log(f"wrote {os.path.join(run_dir, 'transfer.json')} and transfer.png")
     return result
-
-
-def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
-    """Training-episode return against env steps for several metrics.csv files (Figs. 6b/8b)."""
-    import csv
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for label, csv_path in curves.items():
-        with open(csv_path) as f:
-            rows = [r for r in csv.DictReader(f) if r["episode_return"] != "nan"]
-        steps = np.array([float(r["env_steps"]) for r in rows])
-        ret = np.array([float(r["episode_return"]) for r in rows])
-        if len(ret):
-            w = max(1, len(ret) // 15)
-            ax.plot(steps[w - 1 :], np.convolve(ret, np.ones(w) / w, mode="valid"), label=label)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("episode return (training episodes)")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(args: TransferArgs) -> int:

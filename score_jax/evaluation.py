@@ -16,7 +16,7 @@ import numpy as np
 from flax import struct
 
 from envs.base import CompositeEnv
-from score_jax.failures import apply_failures, failure_mask
+from score_jax.failures import fail_batch
 from score_jax.spaces import agents_to_env_action, pad_width, sample_agent_actions
 
 # act_fn(env_state [E], key) -> agent actions [E, n_agents, width]; a learned policy reads
@@ -60,14 +60,9 @@ def evaluate(
 
     def step(carry, key_t):
         state, last, ret, alive, length = carry
-        key_act, key_mask, key_fail = jax.random.split(key_t, 3)
+        key_act, key_fail = jax.random.split(key_t)
         action = agents_to_env_action(space, act_fn(state, key_act), agent_index)
-        fail_keys = jax.random.split(key_mask, n_episodes)
-        active = jax.vmap(lambda k: failure_mask(k, space.n, n_failed, jnp.asarray(controlled)))(fail_keys)
-        active = active | ~controlled  # uncontrolled sub-spaces are already at their defaults
-        applied = jax.vmap(apply_failures, in_axes=(None, 0, 0, None, 0, 0))(
-            space, action, active, mode, jax.random.split(key_fail, n_episodes), last
-        )
+        applied, _ = fail_batch(space, action, last, key_fail, n_failed, mode, controlled)
         state = jax.vmap(env.step)(state, applied)
         ret = ret + alive * state.reward
         length = length + alive

@@ -100,3 +100,23 @@ def check_active(active, n: int) -> None:
         raise ValueError(f"active mask must have shape ({n},), got {active.shape}")
     if not active.any():
         raise ValueError("active mask has every sub-space failed; at least one must stay active")
+
+
+def fail_batch(space: CompositeSpace, action, last_action, key, n_failed, mode, controlled) -> tuple[jax.Array, jax.Array]:
+    """Failures for a batch of environments, as every rollout applies them.
+
+    Args:
+      action: ``[B, n, max_dim]`` environment actions; ``last_action`` the same shape.
+      n_failed: how many of the ``controlled`` sub-spaces fail in each environment (redrawn per call).
+      mode: a ``FailureMode`` value; ``controlled``: ``[n]`` bool (numpy), sub-spaces agents drive
+        (the others are already at their defaults and never count as failed).
+
+    Returns:
+      ``(applied [B, n, max_dim], active [B, n])``.
+    """
+    b = action.shape[0]
+    controlled = jnp.asarray(controlled, bool)
+    key_mask, key_fill = jax.random.split(key)
+    active = jax.vmap(lambda k: failure_mask(k, space.n, n_failed, controlled))(jax.random.split(key_mask, b)) | ~controlled
+    applied = jax.vmap(apply_failures, in_axes=(None, 0, 0, None, 0, 0))(space, action, active, mode, jax.random.split(key_fill, b), last_action)
+    return applied, active

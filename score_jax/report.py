@@ -68,13 +68,38 @@ def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:
         ax.plot(steps[ok][window - 1 :], smooth, "-", lw=2, label=f"moving mean ({window})")
     if (~np.isnan(ev)).any():
         ax.plot(steps[~np.isnan(ev)], ev[~np.isnan(ev)], "o-", label="evaluation (deterministic)")
+    _save(fig, ax, png_path, title, "episode return")
+
+
+def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
+    """Smoothed training-episode return against env steps for several metrics.csv files (Figs. 6b/8b)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for label, csv_path in curves.items():
+        with open(csv_path) as f:
+            rows = [r for r in csv.DictReader(f) if r["episode_return"] != "nan"]
+        steps = np.array([float(r["env_steps"]) for r in rows])
+        ret = np.array([float(r["episode_return"]) for r in rows])
+        if len(ret):
+            w = max(1, len(ret) // 15)
+            ax.plot(steps[w - 1 :], np.convolve(ret, np.ones(w) / w, mode="valid"), label=label)
+    _save(fig, ax, path, title, "episode return (training episodes)")
+
+
+def _save(fig, ax, path: str, title: str, ylabel: str) -> None:
+    import matplotlib.pyplot as plt
+
     ax.set_xlabel("environment steps")
-    ax.set_ylabel("episode return")
+    ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(png_path, dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 

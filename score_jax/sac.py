@@ -59,7 +59,7 @@ class SACState:
     actor: Any
     critic: Any
     target_critic: Any
-    log_alpha: jax.Array  # []
+    log_alpha: jax.Array  # [n] one temperature per agent (or [] shared)
     actor_opt: Any
     critic_opt: Any
     alpha_opt: Any
@@ -70,8 +70,8 @@ class SACState:
 class SACMetrics:
     critic_loss: jax.Array
     actor_loss: jax.Array
-    alpha: jax.Array
-    entropy: jax.Array  # mean over the batch of -sum_i log pi_i
+    alpha: jax.Array  # mean over agents
+    entropy: jax.Array  # mean over the batch of -sum_i log pi_i (active agents)
     q_mean: jax.Array
 
 
@@ -91,7 +91,7 @@ def critic_loss(critic_params, state: SACState, batch: Transition, mask, key, hy
     next_action, next_logp = policy_fn(state.actor, consts, batch.next_obs, key, False)
     next_q = jnp.min(q_fn(state.target_critic, consts, batch.next_obs, next_action, mask), axis=-1)
     alpha = jnp.exp(state.log_alpha)
-    soft_next = next_q - alpha * jnp.sum(jnp.where(mask, next_logp, 0.0), axis=-1)
+    soft_next = next_q - jnp.sum(jnp.where(mask, alpha * next_logp, 0.0), axis=-1)
     y = hyper.reward_scale * batch.reward + hyper.gamma * (1.0 - batch.terminal) * soft_next
     q = q_fn(critic_params, consts, batch.obs, batch.action, mask)
     loss = 0.5 * jnp.mean(jnp.sum((q - jax.lax.stop_gradient(y)[:, None]) ** 2, axis=-1))
@@ -99,19 +99,25 @@ def critic_loss(critic_params, state: SACState, batch: Transition, mask, key, hy
 
 
 def actor_loss(actor_params, state: SACState, batch: Transition, mask, key, policy_fn: PolicyFn, q_fn: QFn):
-    """Alg. 1 line 14: mean of alpha * sum_i log pi_i - min_j Q_j(o, a~(o)); masked agents excluded."""
+    """Alg. 1 line 14: mean of sum_i alpha_i log pi_i - min_j Q_j(o, a~(o)); masked agents excluded.
+
+    Returns ``(loss, log_prob [B, n])`` (the log-probs feed the temperature update)."""
     consts = state.consts
     action, logp = policy_fn(actor_params, consts, batch.obs, key, False)
     q = jnp.min(q_fn(state.critic, consts, batch.obs, action, mask), axis=-1)
-    sum_logp = jnp.sum(jnp.where(mask, logp, 0.0), axis=-1)
-    loss = jnp.mean(jnp.exp(state.log_alpha) * sum_logp - q)
-    return loss, sum_logp
+    loss = jnp.mean(jnp.sum(jnp.where(mask, jnp.exp(state.log_alpha) * logp, 0.0), axis=-1) - q)
+    return loss, logp
 
 
-def alpha_loss(log_alpha, sum_logp, mask, consts: AgentConsts):
-    """Automatic entropy tuning: drive -sum_i log pi_i towards the masked entropy target."""
-    target = jnp.sum(jnp.where(mask, consts.target_entropy, 0.0), axis=-1)
-    return -jnp.mean(log_alpha * jax.lax.stop_gradient(sum_logp + target))
+def alpha_loss(log_alpha, logp, mask, consts: AgentConsts):
+    """Automatic entropy tuning: drive each agent's -log pi_i towards its target (masked).
+
+    With one temperature per agent (``log_alpha [n]``) a sub-space with few dims (the lamp
+    hours) keeps exploring even when the others' entropy dominates the sum; a shared
+    ``log_alpha []`` gives the usual single-temperature SAC.
+    """
+    terms = jnp.where(mask, log_alpha * jax.lax.stop_gradient(logp + consts.target_entropy), 0.0)
+    return -jnp.sum(terms) / mask.shape[0]
 
 
 def make_sac_update(
@@ -140,19 +146,19 @@ def make_sac_update(
         critic = optax.apply_updates(state.critic, c_updates)
         state = state.replace(critic=critic, critic_opt=critic_opt_state)
 
-        (a_loss, sum_logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
+        (a_loss, logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
             state.actor, state, batch, mask, key_actor, policy_fn, q_fn
         )
         a_updates, actor_opt_state = actor_opt.update(a_grads, state.actor_opt, state.actor)
         actor = optax.apply_updates(state.actor, a_updates)
 
-        al_grad = jax.grad(alpha_loss)(state.log_alpha, sum_logp, mask, state.consts)
+        al_grad = jax.grad(alpha_loss)(state.log_alpha, logp, mask, state.consts)
         al_update, alpha_opt_state = alpha_opt.update(al_grad, state.alpha_opt, state.log_alpha)
         log_alpha = optax.apply_updates(state.log_alpha, al_update)
 
         target = optax.incremental_update(critic, state.target_critic, hyper.tau)
         state = state.replace(actor=actor, actor_opt=actor_opt_state, log_alpha=log_alpha, alpha_opt=alpha_opt_state, target_critic=target)
-        metrics = SACMetrics(c_loss, a_loss, jnp.exp(log_alpha), -jnp.mean(sum_logp), q_mean)
+        metrics = SACMetrics(c_loss, a_loss, jnp.mean(jnp.exp(log_alpha)), -jnp.mean(jnp.sum(jnp.where(mask, logp, 0.0), -1)), q_mean)
         return state, metrics
 
     return update

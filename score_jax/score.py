@@ -146,7 +146,7 @@ def init_state(nets: ScoreNetworks, key: jax.Array, consts: AgentConsts, optimiz
     net = nets.critic.init(key_critic, obs, actions, consts.dim_mask, c, consts.valid, consts.critic_inputs.hvae_params)["params"]
     critic = CriticVars(net, free_c)
     actor_opt, critic_opt, alpha_opt = optimizers or make_optimizers(cfg)
-    log_alpha = jnp.log(jnp.asarray(cfg.init_alpha, jnp.float32))
+    log_alpha = jnp.full((nets.n_agents,), jnp.log(cfg.init_alpha), jnp.float32)  # one temperature per agent
     return SACState(
         actor=actor, critic=critic, target_critic=critic, log_alpha=log_alpha,
         actor_opt=actor_opt.init(actor), critic_opt=critic_opt.init(critic), alpha_opt=alpha_opt.init(log_alpha), consts=consts,

@@ -27,6 +27,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from envs.base import CompositeEnv, EnvState
 from envs.wrappers import AutoReset
+from score_jax.failures import fail_batch
 from score_jax.replay import ReplayBuffer, Transition, replay_add, replay_init, replay_sample
 from score_jax.spaces import agents_to_env_action, sample_agent_actions
 
@@ -47,6 +48,11 @@ class OffPolicyConfig:
     """Gradient updates per vectorised environment step."""
     steps_per_epoch: int = 20
     """Vectorised environment steps per jitted epoch call."""
+    train_failures: int = 0
+    """Controlled sub-spaces that fail at every collection step (redrawn each step; 0 = none).
+    The environment receives the failure-mode replacement and the critic masks those agents."""
+    train_failure_mode: int = 0
+    """Failure mode of ``train_failures``: 0 default, 1 random, 2 last (``FailureMode``)."""
 
 
 class OffPolicyAlgorithm(NamedTuple):
@@ -72,6 +78,7 @@ class TrainState:
     buffer: ReplayBuffer
     env_state: EnvState  # batched [num_envs], auto-resetting
     episode_return: jax.Array  # [num_envs] running return of the current episodes
+    last_action: jax.Array  # [num_envs, n, max_dim] action the envs received last step (LAST failure mode)
     key: jax.Array
     env_steps: jax.Array  # [] int32 transitions collected so far
     updates: jax.Array  # [] int32 gradient updates so far
@@ -122,6 +129,7 @@ class Trainer:
             buffer=replay_init(example, self.config.replay_capacity),
             env_state=env_state,
             episode_return=jnp.zeros(self.config.num_envs),
+            last_action=jnp.broadcast_to(self.space.default_action(), (self.config.num_envs, self.space.n, self.space.max_dim)),
             key=key,
             env_steps=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
@@ -137,7 +145,7 @@ class Trainer:
         put = lambda tree, sharding: jax.tree.map(lambda x: jax.device_put(x, sharding), tree)
         return state.replace(
             agent=put(state.agent, replicated), buffer=put(state.buffer, replicated), key=put(state.key, replicated),
-            env_state=put(state.env_state, data), episode_return=put(state.episode_return, data),
+            env_state=put(state.env_state, data), episode_return=put(state.episode_return, data), last_action=put(state.last_action, data),
             env_steps=put(state.env_steps, replicated), updates=put(state.updates, replicated),
         )
 
@@ -150,15 +158,17 @@ class Trainer:
     def _step(self, carry: tuple[TrainState, Any], _):
         state, hyper = carry
         cfg = self.config
-        key, key_act, key_rand, key_upd = jax.random.split(state.key, 4)
+        key, key_act, key_rand, key_upd, key_fail = jax.random.split(state.key, 5)
         policy_action = self.algo.act(state.agent, state.env_state.obs, key_act, False)
         explore = state.env_steps < cfg.learning_starts
         action = jnp.where(explore, sample_agent_actions(self.space, self.agent_index, key_rand, (cfg.num_envs,), self.algo.width), policy_action)
-        env_action = agents_to_env_action(self.space, action, self.agent_index)
+        env_action, active = self._apply_train_failures(agents_to_env_action(self.space, action, self.agent_index), state.last_action, key_fail)
         env_state, final_obs = jax.vmap(self.env.step)(state.env_state, env_action)
+        # store what the environment received (a failed agent's replacement, padded to width)
+        received = jnp.pad(env_action[:, self.agent_index], ((0, 0), (0, 0), (0, self.algo.width - self.space.max_dim)))
         transition = Transition(
-            obs=state.env_state.obs, action=action, reward=env_state.reward, next_obs=final_obs,
-            terminal=env_state.done * (1.0 - env_state.truncated), active=jnp.ones(action.shape[:2], bool),
+            obs=state.env_state.obs, action=jnp.where(active[..., None], action, received), reward=env_state.reward, next_obs=final_obs,
+            terminal=env_state.done * (1.0 - env_state.truncated), active=active,
         )
         buffer = replay_add(state.buffer, transition)
         ret = state.episode_return + env_state.reward
@@ -182,9 +192,21 @@ class Trainer:
         agent, metrics, did = jax.lax.cond(learn, do_updates, skip, state.agent)
         state = TrainState(
             agent=agent, buffer=buffer, env_state=env_state, episode_return=ret * (1.0 - env_state.done), key=key,
+            last_action=env_action,
             env_steps=env_steps, updates=state.updates + cfg.updates_per_step * did.astype(jnp.int32),
         )
         return (state, hyper), (metrics, did, completed, jnp.mean(env_state.reward))
+
+    def _apply_train_failures(self, env_action, last_action, key):
+        """Training-time failures through the shared failure function; returns
+        ``(env action [B, n_env, max_dim], agent active mask [B, n_agents])``."""
+        cfg = self.config
+        n_agents = len(self.agent_index)
+        if cfg.train_failures == 0:
+            return env_action, jnp.ones((cfg.num_envs, n_agents), bool)
+        controlled = np.isin(np.arange(self.space.n), self.agent_index)
+        applied, active = fail_batch(self.space, env_action, last_action, key, cfg.train_failures, cfg.train_failure_mode, controlled)
+        return applied, active[:, self.agent_index]
 
     def _epoch(self, state: TrainState, hyper) -> tuple[TrainState, EpochMetrics]:
         (state, _), (metrics, did, completed, reward) = jax.lax.scan(self._step, (state, hyper), None, self.config.steps_per_epoch)

@@ -112,7 +112,7 @@ def grow_agent(source: SACState, template: SACState, p: TransferPlan, new_c, key
     critic = source.critic.replace(c=grow_free_c(source.critic.c))
     target = source.target_critic.replace(c=grow_free_c(source.target_critic.c))
     return template.replace(
-        actor=actor, critic=critic, target_critic=target, log_alpha=source.log_alpha,
+        actor=actor, critic=critic, target_critic=target, log_alpha=jnp.concatenate([source.log_alpha, template.log_alpha])[pick],
         consts=template.consts.replace(critic_inputs=frozen),
     )
 

@@ -58,16 +58,24 @@ def test_critic_loss_by_hand():
 def test_actor_and_alpha_loss_by_hand():
     state = _state()
     batch = Transition(OBS, ACTION, REWARD, NEXT, TERMINAL, np.ones((2, 2), bool))
-    loss, sum_logp = actor_loss(state.actor, state, batch, MASK, jax.random.PRNGKey(0), policy_fn, q_fn)
+    loss, logp_agents = actor_loss(state.actor, state, batch, MASK, jax.random.PRNGKey(0), policy_fn, q_fn)
     a, logp = _np_policy(0.7, OBS)
     s = np.sum(np.where(MASK, a, 0), -1)
     q = np.minimum(1.0 * s + 0.5 * OBS[:, 0], 2.0 * s - 0.5 * OBS[:, 0])
     slp = np.sum(np.where(MASK, logp, 0), -1)
     np.testing.assert_allclose(float(loss), np.mean(ALPHA * slp - q), rtol=1e-5)
-    np.testing.assert_allclose(sum_logp, slp, rtol=1e-6)
-    # alpha: -mean(log_alpha * (sum_logp + masked target)); targets are -1 per active agent
-    al = alpha_loss(jnp.log(ALPHA), sum_logp, MASK, state.consts)
+    np.testing.assert_allclose(logp_agents, logp, rtol=1e-6)
+    # shared alpha: -mean(log_alpha * (sum_logp + masked target)); targets are -1 per active agent
+    al = alpha_loss(jnp.log(ALPHA), logp_agents, MASK, state.consts)
     np.testing.assert_allclose(float(al), -np.mean(np.log(ALPHA) * (slp + np.array([-2.0, -1.0]))), rtol=1e-5)
+    # one temperature per agent: each agent's term only moves its own alpha
+    log_alphas = jnp.log(jnp.array([0.2, 0.5]))
+    grad = jax.grad(alpha_loss)(log_alphas, logp_agents, MASK, state.consts)
+    expected = -np.sum(np.where(MASK, logp + (-1.0), 0.0), axis=0) / 2
+    np.testing.assert_allclose(grad, expected, rtol=1e-5)
+    # per-agent actor loss weights each agent's log-prob by its own alpha
+    per_agent = actor_loss(state.actor, state.replace(log_alpha=log_alphas), batch, MASK, jax.random.PRNGKey(0), policy_fn, q_fn)[0]
+    np.testing.assert_allclose(float(per_agent), np.mean(np.sum(np.where(MASK, np.array([0.2, 0.5]) * logp, 0), -1) - q), rtol=1e-5)
 
 
 def test_target_entropy_counts_valid_dims():

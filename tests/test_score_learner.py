@@ -177,3 +177,20 @@ def test_sharded_epoch_equals_single_device():
     env = {**os.environ, "PYTHONPATH": ROOT, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     out = subprocess.run([sys.executable, "-c", SHARDED_SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert "SHARDED_OK" in out.stdout, out.stderr[-3000:]
+
+
+def test_training_time_failures_go_through_the_failure_function(finished_run):
+    """With train_failures=1 each collected step has exactly one failed agent, whose stored action
+    is what the environment received (its default) and which the critic masks out."""
+    from score_jax.trainer import Trainer
+
+    cfg = dataclasses.replace(finished_run.config.off_policy, train_failures=1, train_failure_mode=0, learning_starts=10_000)
+    trainer = Trainer(finished_run.env, finished_run.algo.off_policy, cfg, finished_run.agent_index)
+    state, _ = trainer.epoch(trainer.init(jax.random.PRNGKey(3)), finished_run.algo.off_policy.hyper)
+    n = int(state.buffer.size)
+    active = np.asarray(state.buffer.data.active[:n])
+    np.testing.assert_array_equal(active.sum(axis=1), 2)
+    default = np.asarray(finished_run.env.space.default_action())
+    actions = np.asarray(state.buffer.data.action[:n])
+    failed_rows, failed_agents = np.nonzero(~active)
+    np.testing.assert_allclose(actions[failed_rows, failed_agents], default[failed_agents], atol=1e-6)
