@@ -64,7 +64,8 @@ def test_continuous_hours_switch():
 def test_schedule_on_fraction():
     on = np.asarray(on_fraction(jnp.float32(6.0), jnp.float32(18.0), 1))[:, 0]
     np.testing.assert_array_equal(on, (np.arange(24) >= 6) & (np.arange(24) < 18))
-    assert np.asarray(on_fraction(jnp.float32(18.0), jnp.float32(6.0), 1)).sum() == 0  # end <= start: off
+    night = np.asarray(on_fraction(jnp.float32(18.0), jnp.float32(6.0), 1))[:, 0]  # end < start: wraps midnight
+    np.testing.assert_array_equal(night, [1] * 6 + [0] * 12 + [1] * 6)
     assert np.asarray(on_fraction(jnp.float32(9.0), jnp.float32(9.0), 1)).sum() == 0
     frac = np.asarray(on_fraction(jnp.float32(6.5), jnp.float32(8.25), 2)).reshape(-1)  # half-hour sub-steps
     np.testing.assert_allclose(frac[12:18], [0.0, 1.0, 1.0, 1.0, 0.5, 0.0])

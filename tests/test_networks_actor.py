@@ -98,8 +98,20 @@ def test_log_prob_matches_hand_computation():
         # exactly the grid value, computed in float32 as CompositeSpace.choice_value does
         assert action[0, 1] == np.float32(k) / np.float32(3) * np.float32(2) - np.float32(1)
         assert k < 4 and action[0, 2] == 0.0
-        disc = float(jax.nn.log_softmax(logits[:4])[k])
+        lp = np.asarray(jax.nn.log_softmax(logits[:4]))
+        disc = float(np.sum(np.exp(lp) * lp))  # exact expectation: minus the entropy of the 4 valid choices
         np.testing.assert_allclose(float(logp[0]), cont + disc, rtol=2e-4, atol=2e-4)
+
+
+def test_discrete_entropy_bonus_has_a_gradient():
+    """The expected -log p of a discrete dim is its entropy, so an entropy bonus moves the logits
+    towards uniform (with a sampled log p(k) the expected gradient would be zero)."""
+    logits = jnp.array([[[2.0, 0.0, -1.0]]])
+    out = lambda l: ActorOutput(mean=jnp.zeros((1, 1)), log_std=jnp.zeros((1, 1)), logits=l)
+    neg_entropy = lambda l: sample_actions(out(l), jnp.array([[True]]), jnp.array([[3]]), jax.random.PRNGKey(0))[1][0]
+    g = jax.grad(neg_entropy)(logits)
+    stepped = logits - 0.5 * g
+    assert float(neg_entropy(stepped)) < float(neg_entropy(logits))
 
 
 def test_deterministic_mode():

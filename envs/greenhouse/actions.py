@@ -19,10 +19,12 @@ irrigation     2           (start hour, end hour), like lighting   (7, 17): ten 
                                                                    except on the brightest days
 =============  ==========  =====================================  =============================
 
-Schedules: the lamps (irrigation) run during ``[start, end)`` in hours of the day; a sub-step
-contributes the fraction of its own interval that lies inside. If ``end <= start`` the lamps
-(irrigation) stay off that day, so "off" is any pair with ``end <= start`` (e.g. 0, 0); with
-discrete hours the last possible end is 23:00.
+Schedules: the lamps (irrigation) run during ``[start, end)`` in hours of the day, like a
+timer: if ``end < start`` the interval wraps past midnight (lamps 22 -> 6 light the night,
+which is common where night electricity is cheap); ``end == start`` is off for the day. A
+sub-step contributes the fraction of its own interval that lies inside. (An earlier version
+switched off whenever ``end <= start``: half of all random pairs meant "no water", a cliff that
+made learning collapse.)
 """
 
 from __future__ import annotations
@@ -58,12 +60,16 @@ def greenhouse_space(discrete_hours: bool = True) -> CompositeSpace:
 def on_fraction(start: jax.Array, end: jax.Array, substeps_per_hour: int) -> jax.Array:
     """Fraction of every sub-step inside ``[start, end)`` hours: ``[] , [] -> [24, substeps]``.
 
-    Zero everywhere when ``end <= start`` (the device is off that day).
+    ``end < start`` wraps past midnight (``[start, 24) + [0, end)``); ``end == start`` is off.
     """
     dt = 1.0 / substeps_per_hour
     t0 = jnp.arange(24 * substeps_per_hour, dtype=jnp.float32).reshape(24, substeps_per_hour) * dt
-    overlap = jnp.clip(jnp.minimum(end, t0 + dt) - jnp.maximum(start, t0), 0.0, dt) / dt
-    return jnp.where(end > start, overlap, 0.0)
+
+    def inside(lo, hi):
+        return jnp.clip(jnp.minimum(hi, t0 + dt) - jnp.maximum(lo, t0), 0.0, dt) / dt
+
+    wrapped = inside(start, 24.0) + inside(0.0, end)
+    return jnp.where(end > start, inside(start, end), jnp.where(end < start, wrapped, 0.0))
 
 
 def decode_action(space: CompositeSpace, action: jax.Array, substeps_per_hour: int) -> dict[str, jax.Array]:

@@ -124,8 +124,8 @@ def sample_actions(
     ``log N(u) - log(1 - tanh(u)^2)`` (the tanh change of variables).
     Discrete dims: Gumbel-max picks a grid index k exactly (forward value
     ``-1 + 2k/(n_choices-1)``); the gradient flows through the Gumbel-softmax relaxation
-    (straight-through); log-prob ``log_softmax(logits)[k]`` over the ``n_choices`` valid
-    values (choices >= n_choices excluded).
+    (straight-through); its log-prob term is the exact ``sum_k p_k log p_k`` over the
+    ``n_choices`` valid values (choices >= n_choices excluded), i.e. minus its entropy.
     ``deterministic``: ``tanh(mean)`` and ``argmax(logits)`` (log-probs of those actions).
 
     Args:
@@ -167,7 +167,10 @@ def sample_actions(
     # Straight-through: forward exactly the grid value (x - x is exactly 0, whereas
     # (hard + soft) - soft is not), gradient of the relaxed value.
     disc_value = hard_value + (soft_value - jax.lax.stop_gradient(soft_value))
-    disc_logp = jnp.take_along_axis(log_p, k[..., None], -1)[..., 0]
+    # The log-prob of a discrete dim is its exact expectation sum_k p_k log p_k (minus the
+    # entropy), as in discrete SAC: the sampled log p(k) has zero expected gradient under a
+    # straight-through sample, so the entropy bonus would never act and the choice collapses.
+    disc_logp = jnp.sum(jnp.where(valid, jnp.exp(log_p) * log_p, 0.0), -1)
 
     action = jnp.where(discrete, disc_value, jnp.where(continuous, cont_value, 0.0))
     log_prob = jnp.sum(jnp.where(discrete, disc_logp, 0.0) + jnp.where(continuous, cont_logp, 0.0), -1)
