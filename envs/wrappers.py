@@ -46,6 +46,9 @@ class AutoReset:
         """Returns ``(state, final_obs)``: ``final_obs`` is the observation reached by this step."""
         inner = self.env.step(state.replace(sim=state.sim.inner), action)
         key, key_reset = jax.random.split(state.sim.key)
+        # A fresh random reset every step (selected where done) keeps start states diverse;
+        # brax instead reuses each env's first state. It costs one reset per step: cheap for
+        # the greenhouse, about one extra MJX forward pass for the Spider.
         fresh = self.env.reset(key_reset)
         done = inner.done > 0
         merged = jax.tree.map(lambda f, s: jnp.where(done, f, s), fresh, inner)

@@ -6,7 +6,6 @@ import csv
 import os
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from score_jax.checkpoint import dump_json

@@ -22,7 +22,7 @@ import numpy as np
 import optax
 
 from score_jax import asrl
-from score_jax.networks.actor import Actors, grow_agents, select_agents
+from score_jax.networks.actor import grow_agents, select_agents
 from score_jax.networks.critic import finetune_mask
 from score_jax.sac import SACState
 

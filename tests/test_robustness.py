@@ -1,7 +1,6 @@
 """The robustness sweep: one compiled call equals a Python loop over the settings."""
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import envs

@@ -2,8 +2,6 @@
 
 import dataclasses
 import json
-import os
-import types
 
 import jax
 import jax.numpy as jnp

@@ -26,7 +26,7 @@ def tiny_config(run_dir: str, **overrides) -> TrainConfig:
 
 def tiny_cli_args(run_dir: str, total_steps: int = 1000) -> list[str]:
     """The same configuration as ``tiny_config`` spelled as train.py arguments."""
-    s, o = TINY_SCORE, TINY_OFF_POLICY
+    o = TINY_OFF_POLICY
     return [
         "--env", "probe", "--total-steps", str(total_steps), "--run-dir", str(run_dir), "--quiet", "--checkpoint-every", "400",
         "--off-policy.num-envs", str(o.num_envs), "--off-policy.batch-size", str(o.batch_size),
