@@ -73,10 +73,32 @@ def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> 
     return Algorithm("score", off, policy, nets)
 
 
-REGISTRY: dict[str, Callable[..., Algorithm]] = {"score": make_score}
+# name -> builder, or "module:function" of a builder imported on first use (so importing the
+# registry never imports every baseline). A builder has the signature of ``make_score``.
+REGISTRY: dict[str, Callable[..., Algorithm] | str] = {
+    "score": make_score,
+    "sac": "score_jax.baselines.brax_agents:make_sac",
+    "ppo": "score_jax.baselines.brax_agents:make_ppo",
+    "hppo": "score_jax.baselines.hppo:make_hppo",
+    "isac": "score_jax.baselines.isac:make_isac",
+    "maddpg": "score_jax.baselines.maddpg:make_maddpg",
+    "maac": "score_jax.baselines.maac:make_maac",
+    "qmix": "score_jax.baselines.qmix:make_qmix",
+}
+
+
+def builder(name: str) -> Callable[..., Algorithm]:
+    """The builder registered under ``name`` (imports it on first use)."""
+    if name not in REGISTRY:
+        raise ValueError(f"unknown algorithm {name!r}; known: {sorted(REGISTRY)}")
+    entry = REGISTRY[name]
+    if isinstance(entry, str):
+        import importlib
+
+        module, func = entry.split(":")
+        entry = getattr(importlib.import_module(module), func)
+    return entry
 
 
 def make(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> Algorithm:
-    if cfg.algo not in REGISTRY:
-        raise ValueError(f"unknown algorithm {cfg.algo!r}; known: {sorted(REGISTRY)}")
-    return REGISTRY[cfg.algo](cfg, env, agent_index, key, pretrain=pretrain, log=log)
+    return builder(cfg.algo)(cfg, env, agent_index, key, pretrain=pretrain, log=log)

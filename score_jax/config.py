@@ -15,7 +15,7 @@ from score_jax.score import ScoreConfig
 from score_jax.trainer import OffPolicyConfig
 
 EnvName = Literal["greenhouse", "spider", "probe"]
-AlgoName = Literal["score"]
+AlgoName = Literal["score", "sac", "ppo", "hppo", "isac", "maddpg", "maac", "qmix"]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -35,6 +35,7 @@ class AgentConsts:
       valid: ``[n]`` bool, agents that exist (False for padding when the agent axis is grown).
       target_entropy: ``[n]`` per-agent entropy target for the temperature alpha.
       critic_inputs: algorithm-specific frozen inputs of the critic (SCORE: HVAE params, c_i).
+      default_action: ``[n, w]`` normalised default sub-actions, the actors' prior (None = none).
     """
 
     dim_mask: jax.Array
@@ -42,6 +43,7 @@ class AgentConsts:
     valid: jax.Array
     target_entropy: jax.Array
     critic_inputs: Any = None
+    default_action: Any = None
 
 
 @struct.dataclass

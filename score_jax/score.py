@@ -104,7 +104,8 @@ class ScoreNetworks:
         """``obs [B, obs] -> (action [B, n, w], log_prob [B, n])`` (Alg. 1 line 2)."""
         out = jax.vmap(lambda o: self.actors.apply({"params": actor_params}, o))(obs)
         keys = jax.random.split(key, obs.shape[0])
-        sample = lambda o, k: sample_actions(o, consts.dim_mask, consts.n_choices, k, deterministic, self.config.actor.gumbel_temperature)
+        a_cfg = self.config.actor
+        sample = lambda o, k: sample_actions(o, consts.dim_mask, consts.n_choices, k, deterministic, a_cfg.gumbel_temperature, consts.default_action, a_cfg.prior_logit)
         action, logp = jax.vmap(sample)(out, keys)
         valid = consts.valid[None, :]
         return jnp.where(valid[..., None], action, 0.0), jnp.where(valid, logp, 0.0)
@@ -122,7 +123,8 @@ def agent_consts(space: CompositeSpace, agent_index, width: int, frozen: FrozenI
     idx = np.asarray(agent_index)
     dim_mask = pad_width(jnp.asarray(space.dim_mask[idx]), width, False)
     n_choices = pad_width(jnp.asarray(space.n_choices[idx]), width, 0)
-    return AgentConsts(dim_mask, n_choices, jnp.ones(len(idx), bool), target_entropy(dim_mask, n_choices), frozen)
+    default = pad_width(jnp.asarray(space.default_action())[idx], width, 0.0)
+    return AgentConsts(dim_mask, n_choices, jnp.ones(len(idx), bool), target_entropy(dim_mask, n_choices), frozen, default)
 
 
 def make_optimizers(cfg: ScoreConfig):

@@ -165,3 +165,23 @@ def test_grow_agents(actors):
     with pytest.raises(ValueError, match="differ in shape"):
         wider = jax.eval_shape(Actors(CFG, 1, WIDTH + 1, SPACE.max_choices).init, jax.random.PRNGKey(9), jnp.zeros(OBS))["params"]
         grow_agents(params, jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), wider))
+
+
+def test_fresh_actor_plays_the_default_and_explores_around_it(actors):
+    """The default is the actors' prior: a fresh (near-zero output) actor's deterministic
+    action is the default of every sub-space, discrete dims included, and stochastic
+    samples pick a discrete default with probability e^b / (e^b + C - 1)."""
+    model, params = actors
+    default = jnp.pad(jnp.asarray(SPACE.default_action()), ((0, 0), (0, WIDTH - SPACE.max_dim)))
+    out = model.apply({"params": params}, jnp.linspace(-1, 1, OBS))
+    det, _ = sample_actions(out, DIM_MASK, N_CHOICES, jax.random.PRNGKey(0), True, 1.0, default, 3.0)
+    np.testing.assert_allclose(det, default, atol=0.05)  # continuous: tanh(mean + atanh(default))
+    real_discrete = np.asarray(DIM_MASK & (N_CHOICES > 0))
+    np.testing.assert_array_equal(np.asarray(det)[real_discrete], np.asarray(default)[real_discrete])
+    keys = jax.random.split(jax.random.PRNGKey(2), 4000)
+    acts, _ = jax.jit(jax.vmap(lambda k: sample_actions(out, DIM_MASK, N_CHOICES, k, False, 1.0, default, 3.0)))(keys)
+    hit = np.mean(np.asarray(acts)[:, 1, 0] == np.asarray(default)[1, 0])  # k5: 5 choices
+    assert abs(hit - math.e**3 / (math.e**3 + 4)) < 0.05
+    # without the prior the same actor is near uniform over the 5 choices
+    acts0, _ = jax.jit(jax.vmap(lambda k: sample_actions(out, DIM_MASK, N_CHOICES, k)))(keys)
+    assert abs(np.mean(np.asarray(acts0)[:, 1, 0] == np.asarray(default)[1, 0]) - 0.2) < 0.05

@@ -31,12 +31,24 @@ class ActorConfig:
       log_std_min: lower end of the Gaussian log-std (smooth squash).
       log_std_max: upper end of the Gaussian log-std.
       gumbel_temperature: tau of the Gumbel-softmax relaxation (gradient path only).
+
+    Actors act around the sub-space's ``default`` (the safe physical value a failed
+    controller falls back to): the default is a fixed offset of the Gaussian mean and of the
+    logits (``sample_actions(..., default=...)``), and the output layer starts near zero, so an
+    untrained deterministic actor plays the default action and exploration starts around it.
     """
 
     hidden: tuple[int, ...] = (128, 128)
     log_std_min: float = -5.0
     log_std_max: float = 2.0
     gumbel_temperature: float = 1.0
+    head_init_scale: float = 0.01
+    """Scale of the output layer's initial kernel: a fresh actor's output is ~0, so it starts
+    at the prior of ``sample_actions`` (the sub-space's default, see ``prior_logit``)."""
+    prior_logit: float = 3.0
+    """Logit bonus of a discrete dim's default choice (added to the actor's logits); with
+    ``head_init_scale`` small, a fresh actor picks the default with probability
+    ``e^b / (e^b + n_choices - 1)`` (0.47 for 24 hours at b = 3). 0 = uniform start."""
 
 
 @struct.dataclass
@@ -67,7 +79,8 @@ class AgentActor(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array):
         w, C, dw = self.action_width, self.max_choices, self.discrete_width
-        raw = MLP(tuple(self.config.hidden), 2 * w + dw * C, name="mlp")(obs)
+        head_init = nn.initializers.variance_scaling(self.config.head_init_scale**2, "fan_in", "truncated_normal")
+        raw = MLP(tuple(self.config.hidden), 2 * w + dw * C, out_kernel_init=head_init, name="mlp")(obs)
         mean, raw_log_std, logits = raw[:w], raw[w : 2 * w], raw[2 * w :].reshape(dw, C)
         lo, hi = self.config.log_std_min, self.config.log_std_max
         log_std = lo + 0.5 * (hi - lo) * (jnp.tanh(raw_log_std) + 1.0)
@@ -117,6 +130,8 @@ def sample_actions(
     key: jax.Array,
     deterministic: bool = False,
     temperature: float = 1.0,
+    default: jax.Array | None = None,
+    prior_logit: float = 0.0,
 ) -> tuple[jax.Array, jax.Array]:
     """Sample all agents' actions and their log-probs (reparameterised, differentiable).
 
@@ -134,6 +149,10 @@ def sample_actions(
       n_choices: ``[n, width]`` int, number of grid values of a discrete column, 0 otherwise.
       key: PRNG key.
       temperature: Gumbel-softmax tau (``ActorConfig.gumbel_temperature``).
+      default: optional ``[n, width]`` normalised default action: the Gaussian mean is offset
+        by ``atanh(default)`` and the default grid choice of a discrete dim gets ``prior_logit``
+        extra logit, so a zero actor output plays the default (``ActorConfig``).
+      prior_logit: logit bonus of the default choice of discrete dims.
 
     Returns:
       ``(action [n, width], log_prob [n])``: padded columns exactly 0, log-probs summed over
@@ -145,10 +164,14 @@ def sample_actions(
     continuous = dim_mask & (n_choices <= 0)
     key_normal, key_gumbel = jax.random.split(key)
 
+    mean = out.mean
+    if default is not None:
+        mean = mean + jnp.arctanh(jnp.clip(default, -0.995, 0.995))
+
     # Continuous: tanh-Gaussian.
     std = jnp.exp(out.log_std)
-    noise = jnp.zeros_like(out.mean) if deterministic else jax.random.normal(key_normal, out.mean.shape)
-    u = out.mean + std * noise
+    noise = jnp.zeros_like(mean) if deterministic else jax.random.normal(key_normal, mean.shape)
+    u = mean + std * noise
     log_normal = -0.5 * jnp.square(noise) - out.log_std - 0.5 * math.log(2.0 * math.pi)
     log_det = 2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u))  # log(1 - tanh(u)^2), stable
     cont_value, cont_logp = jnp.tanh(u), log_normal - log_det
@@ -158,6 +181,9 @@ def sample_actions(
     pad = out.mean.shape[-1] - out.logits.shape[-2]  # columns past discrete_width are never discrete
     out_logits = jnp.pad(out.logits, [(0, 0)] * (out.logits.ndim - 2) + [(0, pad), (0, 0)])
     grid, valid = _grid(n_choices, C)
+    if default is not None:  # the grid index nearest the default gets the prior bonus
+        default_index = jnp.round((default + 1.0) * 0.5 * jnp.maximum(n_choices - 1, 1))
+        out_logits = out_logits + prior_logit * (jnp.arange(C) == default_index[..., None])
     logits = jnp.where(valid, out_logits, -1e9)  # exp underflows to exactly 0 in float32
     log_p = jax.nn.log_softmax(logits, -1)
     gumbel = jnp.zeros_like(logits) if deterministic else jax.random.gumbel(key_gumbel, logits.shape)
