@@ -7,24 +7,40 @@ Importing this module imports brax (and MuJoCo), so it is kept apart from ``envs
 from __future__ import annotations
 
 import jax
+import numpy as np
 from brax.envs.base import Env, State
 
 from envs.base import CompositeEnv
 
 
 class BraxFlatEnv(Env):
-    """A CompositeEnv seen by brax: ``action [total_dim]`` in [-1, 1] -> ``[n, max_dim]``."""
+    """A CompositeEnv seen by brax: ``action [total_dim]`` in [-1, 1] -> ``[n, max_dim]``.
 
-    def __init__(self, env: CompositeEnv):
+    ``controlled`` (``[n]`` bool, default all): sub-spaces whose sub-actions reach the
+    environment; the others get their defaults through the shared failure function (a
+    fixed-width baseline trained on a subset, ``score_jax.baselines.variants``).
+
+    ``done`` is reported for true terminations only: brax's ``EpisodeWrapper`` (with
+    ``episode_length = env.episode_length``) ends episodes at the time limit and marks them
+    truncated, so brax bootstraps through time limits as the shared trainer does.
+    """
+
+    def __init__(self, env: CompositeEnv, controlled=None):
         self.env = env
+        self.controlled = None if controlled is None or np.all(controlled) else np.asarray(controlled, bool)
 
     def reset(self, rng: jax.Array) -> State:
         s = self.env.reset(rng)
         return State(pipeline_state=s, obs=s.obs, reward=s.reward, done=s.done, metrics={}, info={})
 
     def step(self, state: State, action: jax.Array) -> State:
-        s = self.env.step(state.pipeline_state, self.env.space.unflatten(action))
-        return state.replace(pipeline_state=s, obs=s.obs, reward=s.reward, done=s.done)
+        a = self.env.space.unflatten(action)
+        if self.controlled is not None:
+            from score_jax.baselines.variants import replace_unseen
+
+            a = replace_unseen(self.env.space, a, self.controlled)
+        s = self.env.step(state.pipeline_state, a)
+        return state.replace(pipeline_state=s, obs=s.obs, reward=s.reward, done=s.done * (1.0 - s.truncated))
 
     @property
     def observation_size(self) -> int:

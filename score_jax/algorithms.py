@@ -25,6 +25,11 @@ class Algorithm:
     off_policy: OffPolicyAlgorithm
     policy: Callable[[Any], ActFn]
     networks: Any = None
+    train_external: Callable[..., Any] | None = None
+    """Set by algorithms that run their own training loop (brax SAC / PPO, H-PPO):
+    ``train_external(run, total_steps, report, initial_agent) -> agent_state``; then
+    ``off_policy`` only supplies ``init`` (the saved state's template), ``act``, ``n_agents``
+    and ``width``, and ``score_jax.external_loop`` drives the run."""
 
     def evaluate(self, run, state, n_episodes: int, n_failed=0, mode=0, key=None) -> EvalResult:
         key = jax.random.PRNGKey(run.config.seed + 10_000) if key is None else key

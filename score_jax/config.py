@@ -11,6 +11,7 @@ import ast
 import dataclasses
 from typing import Literal
 
+from score_jax.baselines.single_config import SingleAgentConfig
 from score_jax.score import ScoreConfig
 from score_jax.trainer import OffPolicyConfig
 
@@ -64,6 +65,8 @@ class TrainConfig:
     """Rollout, replay and update schedule."""
     score: ScoreConfig = ScoreConfig()
     """SCORE networks, ASRL and SAC settings."""
+    single: SingleAgentConfig = SingleAgentConfig()
+    """Single-agent baselines trained by brax (sac, ppo, hppo) and the transfer variant of fixed-width baselines."""
 
     def env_overrides(self) -> dict:
         """``env_options`` parsed into keyword overrides (values as Python literals when possible)."""

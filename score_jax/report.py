@@ -80,12 +80,15 @@ def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
     fig, ax = plt.subplots(figsize=(7, 4))
     for label, csv_path in curves.items():
         with open(csv_path) as f:
-            rows = [r for r in csv.DictReader(f) if r["episode_return"] != "nan"]
+            rows = list(csv.DictReader(f))
+        # runs trained inside brax (sac, ppo, hppo) log no training episodes: plot their evaluations
+        column = "episode_return" if any(r["episode_return"] != "nan" for r in rows) else "eval_return"
+        rows = [r for r in rows if r[column] != "nan"]
         steps = np.array([float(r["env_steps"]) for r in rows])
-        ret = np.array([float(r["episode_return"]) for r in rows])
+        ret = np.array([float(r[column]) for r in rows])
         if len(ret):
             w = max(1, len(ret) // 15)
-            ax.plot(steps[w - 1 :], np.convolve(ret, np.ones(w) / w, mode="valid"), label=label)
+            ax.plot(steps[w - 1 :], np.convolve(ret, np.ones(w) / w, mode="valid"), label=label if column == "episode_return" else f"{label} (evaluations)")
     _save(fig, ax, path, title, "episode return (training episodes)")
 
 

@@ -6,6 +6,8 @@ moves one small metrics struct to the host per epoch. Reliability:
   env steps and at the end; ``--resume RUN_DIR`` continues bit-exactly from the latest one;
 - a non-finite loss or parameter stops the run with a message and keeps the last good
   checkpoint (nothing after it is saved).
+Algorithms that train inside brax (``Algorithm.train_external``: sac, ppo, hppo) are handed
+to ``score_jax.external_loop``, which checkpoints their final policy and refuses ``--resume``.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import envs
 from score_jax import algorithms
 from score_jax.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
 from score_jax.config import TrainConfig, from_dict, resolved_total_steps, to_dict
+from score_jax.external_loop import ExternalTrainer, train_external
 from score_jax.trainer import Trainer, TrainState, make_data_mesh
 
 METRIC_COLUMNS = ("env_steps", "updates", "wall_s", "episode_return", "reward_mean", "critic_loss", "actor_loss", "alpha", "entropy", "q_mean", "eval_return")
@@ -62,7 +65,10 @@ def build(cfg: TrainConfig, key: jax.Array, run_dir: str, restoring: bool = Fals
     agent_index = resolve_agent_index(env.space, cfg.agent_names())
     algo = algorithms.make(cfg, env, agent_index, key, pretrain=not restoring, log=log)
     mesh = make_data_mesh() if cfg.data_parallel and jax.device_count() > 1 else None
-    trainer = Trainer(env, algo.off_policy, cfg.off_policy, agent_index, mesh)
+    if algo.train_external is not None:  # brax SAC / PPO, H-PPO: their own loop (score_jax.external_loop)
+        trainer = ExternalTrainer(algo.off_policy)
+    else:
+        trainer = Trainer(env, algo.off_policy, cfg.off_policy, agent_index, mesh)
     return Run(cfg, run_dir, env, algo, trainer, None, agent_index)
 
 
@@ -119,6 +125,8 @@ def train(cfg: TrainConfig, log=print, on_epoch=None, initial_agent=None) -> Run
     key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
 
     run = build(cfg, key_build, run_dir, restoring=bool(cfg.resume) or initial_agent is not None, log=log)
+    if run.algo.train_external is not None:
+        return train_external(run, total, key_train, log=log, on_epoch=on_epoch, initial_agent=initial_agent)
     state = run.trainer.init(key_train)
     if initial_agent is not None and not cfg.resume:
         state = run.trainer.place(state.replace(agent=initial_agent(run, state.agent)))
