@@ -19,12 +19,16 @@ class Algorithm:
     """An off-policy algorithm plus how to read its deterministic policy out of a state.
 
     ``policy(agent_state) -> act_fn(env_state_batch, key) -> [E, n_agents, width]``.
+    ``grow(source_run, template_agent_state, plan, key) -> agent_state`` grows a trained run's
+    agent axis by unseen sub-spaces (§4.3, ``transfer.py``); None for an algorithm whose
+    networks are tied to a fixed set of sub-spaces.
     """
 
     name: str
     off_policy: OffPolicyAlgorithm
     policy: Callable[[Any], ActFn]
     networks: Any = None
+    grow: Callable[..., Any] | None = None
     train_external: Callable[..., Any] | None = None
     """Set by algorithms that run their own training loop (brax SAC / PPO, H-PPO):
     ``train_external(run, total_steps, report, initial_agent) -> agent_state``; then
@@ -75,7 +79,15 @@ def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> 
 
     off = OffPolicyAlgorithm("score", lambda k: score.init_state(nets, k, consts, optimizers), act, update, score.hyper(sc, env), len(agent_index), width)
     policy = lambda agent: (lambda env_state, k: act(agent, env_state.obs, k, True))
-    return Algorithm("score", off, policy, nets)
+    return Algorithm("score", off, policy, nets, _grow_score)
+
+
+def _grow_score(src_run, template, plan, key):
+    """SCORE transfer (§4.3): embed the new sub-spaces with the frozen HVAE, then grow."""
+    from score_jax import transfer
+
+    new_c = transfer.embed_new(src_run, src_run.env, plan, key)
+    return transfer.grow_agent(src_run.state.agent, template, plan, new_c, key)
 
 
 # name -> builder, or "module:function" of a builder imported on first use (so importing the

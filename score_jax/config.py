@@ -11,6 +11,7 @@ import ast
 import dataclasses
 from typing import Literal
 
+from score_jax.baselines.marl_config import MarlConfig
 from score_jax.baselines.single_config import SingleAgentConfig
 from score_jax.score import ScoreConfig
 from score_jax.trainer import OffPolicyConfig
@@ -65,6 +66,8 @@ class TrainConfig:
     """Rollout, replay and update schedule."""
     score: ScoreConfig = ScoreConfig()
     """SCORE networks, ASRL and SAC settings."""
+    marl: MarlConfig = MarlConfig()
+    """Multi-agent baselines (isac, maddpg, maac, qmix): sizes, learning rates, exploration."""
     single: SingleAgentConfig = SingleAgentConfig()
     """Single-agent baselines trained by brax (sac, ppo, hppo) and the transfer variant of fixed-width baselines."""
 

@@ -6,7 +6,10 @@ ablations) share it:
 - ``policy_fn(actor_params, consts, obs[B, obs], key, deterministic) -> (action[B, n, w], log_prob[B, n])``
   samples every sub-space's sub-action (decentralised actors);
 - ``q_fn(critic_params, consts, obs[B, obs], action[B, n, w], mask[B, n]) -> q[B, 2]``
-  evaluates the twin centralised critics on the agents where ``mask`` is True.
+  evaluates the twin centralised critics on the agents where ``mask`` is True; or
+  ``-> q[B, k, n]``: k critics (2 twins, or 1) of one Q_i per agent (ISAC, MAAC), each
+  regressed on the team reward with its own entropy term, the losses summed over the agents
+  where ``mask`` is True.
 
 Agent masks (``valid`` agents, failed sub-spaces and DropNode) are arrays inside the update,
 so changing them never recompiles anything.
@@ -88,25 +91,43 @@ def target_entropy(dim_mask, n_choices, discrete_scale: float = 0.3) -> jax.Arra
 
 
 def critic_loss(critic_params, state: SACState, batch: Transition, mask, key, hyper: SACHyper, policy_fn: PolicyFn, q_fn: QFn):
-    """Alg. 1 lines 12-13: mean over the batch and both critics of (Q_j - y)^2 / 2."""
+    """Alg. 1 lines 12-13: mean over the batch of the sum over both critics of (Q_j - y)^2 / 2.
+
+    Centralised ``q [B, 2]``: ``y = r + gamma (min_j Q'_j - sum_i alpha_i log pi_i)``.
+    Per-agent ``q [B, k, n]``: ``y_i = r + gamma (min_j Q'_ij - alpha_i log pi_i)`` and the
+    squared errors are summed over the agents where ``mask`` is True (independent learners).
+    """
     consts = state.consts
     next_action, next_logp = policy_fn(state.actor, consts, batch.next_obs, key, False)
-    next_q = jnp.min(q_fn(state.target_critic, consts, batch.next_obs, next_action, mask), axis=-1)
-    alpha = jnp.exp(state.log_alpha)
-    soft_next = next_q - jnp.sum(jnp.where(mask, alpha * next_logp, 0.0), axis=-1)
-    y = hyper.reward_scale * batch.reward + hyper.gamma * (1.0 - batch.terminal) * soft_next
+    next_q = jnp.min(q_fn(state.target_critic, consts, batch.next_obs, next_action, mask), axis=1)  # [B] or [B, n]
+    entropy = jnp.where(mask, jnp.exp(state.log_alpha) * next_logp, 0.0)  # [B, n]
+    per_agent = next_q.ndim == 2
+    soft_next = next_q - (entropy if per_agent else jnp.sum(entropy, axis=-1))
+    reward = batch.reward[:, None] if per_agent else batch.reward
+    not_done = (1.0 - batch.terminal)[:, None] if per_agent else 1.0 - batch.terminal
+    y = hyper.reward_scale * reward + hyper.gamma * not_done * soft_next
     q = q_fn(critic_params, consts, batch.obs, batch.action, mask)
-    loss = 0.5 * jnp.mean(jnp.sum((q - jax.lax.stop_gradient(y)[:, None]) ** 2, axis=-1))
-    return loss, jnp.mean(q)
+    err = (q - jax.lax.stop_gradient(y)[:, None]) ** 2
+    if per_agent:
+        err = jnp.where(mask[:, None, :], err, 0.0)
+        q_mean = jnp.sum(jnp.where(mask[:, None, :], q, 0.0)) / jnp.maximum(q.shape[1] * jnp.sum(mask), 1.0)
+    else:
+        q_mean = jnp.mean(q)
+    loss = 0.5 * jnp.mean(jnp.sum(err.reshape(err.shape[0], -1), axis=-1))
+    return loss, q_mean
 
 
 def actor_loss(actor_params, state: SACState, batch: Transition, mask, key, policy_fn: PolicyFn, q_fn: QFn):
     """Alg. 1 line 14: mean of sum_i alpha_i log pi_i - min_j Q_j(o, a~(o)); masked agents excluded.
 
-    Returns ``(loss, log_prob [B, n])`` (the log-probs feed the temperature update)."""
+    With per-agent critics (``q [B, k, n]``) the Q term is ``sum_i min_j Q_ij`` over the agents
+    where ``mask`` is True. Returns ``(loss, log_prob [B, n])`` (the log-probs feed the
+    temperature update)."""
     consts = state.consts
     action, logp = policy_fn(actor_params, consts, batch.obs, key, False)
-    q = jnp.min(q_fn(state.critic, consts, batch.obs, action, mask), axis=-1)
+    q = jnp.min(q_fn(state.critic, consts, batch.obs, action, mask), axis=1)  # [B] or [B, n]
+    if q.ndim == 2:
+        q = jnp.sum(jnp.where(mask, q, 0.0), axis=-1)
     loss = jnp.mean(jnp.sum(jnp.where(mask, jnp.exp(state.log_alpha) * logp, 0.0), axis=-1) - q)
     return loss, logp
 

@@ -18,7 +18,7 @@ import optax
 from flax import struct
 
 from score_jax import asrl
-from score_jax.networks.actor import ActorConfig, Actors, sample_actions
+from score_jax.networks.actor import ActorConfig, Actors, actor_policy
 from score_jax.networks.critic import CriticConfig, TwinCritic
 from score_jax.networks.hvae import HVAE, HVAEConfig, init_hvae
 from score_jax.sac import AgentConsts, SACHyper, SACState, make_sac_update, target_entropy
@@ -102,13 +102,7 @@ class ScoreNetworks:
 
     def policy_fn(self, actor_params, consts: AgentConsts, obs, key, deterministic=False):
         """``obs [B, obs] -> (action [B, n, w], log_prob [B, n])`` (Alg. 1 line 2)."""
-        out = jax.vmap(lambda o: self.actors.apply({"params": actor_params}, o))(obs)
-        keys = jax.random.split(key, obs.shape[0])
-        a_cfg = self.config.actor
-        sample = lambda o, k: sample_actions(o, consts.dim_mask, consts.n_choices, k, deterministic, a_cfg.gumbel_temperature, consts.default_action, a_cfg.prior_logit)
-        action, logp = jax.vmap(sample)(out, keys)
-        valid = consts.valid[None, :]
-        return jnp.where(valid[..., None], action, 0.0), jnp.where(valid, logp, 0.0)
+        return actor_policy(self.actors, actor_params, consts, obs, key, deterministic)
 
     def q_fn(self, critic: CriticVars, consts: AgentConsts, obs, action, mask):
         """``[B, obs], [B, n, w], [B, n] -> [B, 2]`` twin Q-values (§4.2)."""

@@ -86,6 +86,25 @@ def plan(source_agent_index, target_agent_index) -> TransferPlan:
     return TransferPlan(np.asarray(target), row < 0, row)
 
 
+def agent_rows(p: TransferPlan, n_src: int) -> np.ndarray:
+    """``[n_grown]`` row of every grown agent in ``[source agents; template agents]``: the source
+    row of an old sub-space, the fresh template row of a new one."""
+    return np.where(p.is_new, n_src + np.arange(len(p.agent_index)), p.source_row)
+
+
+def grow_stacked(source, template, p: TransferPlan):
+    """Grow a parameter tree whose per-agent leaves sit under an ``agents`` key (stacked on a
+    leading agent axis, ``nn.vmap``): those rows come from ``source`` (old sub-spaces) or
+    ``template`` (new ones, fresh); every other leaf (shared across agents) from ``source``."""
+    per_agent = lambda path: any(getattr(k, "key", None) == "agents" for k in path)
+    n_src = {x.shape[0] for path, x in jax.tree_util.tree_leaves_with_path(source) if per_agent(path)}
+    if len(n_src) != 1:
+        raise ValueError(f"grow_stacked: expected one agent count in the source's 'agents' leaves, found {sorted(n_src)}")
+    rows = agent_rows(p, n_src.pop())
+    grow = lambda path, s, t: jnp.concatenate([s, t], 0)[rows] if per_agent(path) else s
+    return jax.tree_util.tree_map_with_path(grow, source, template)
+
+
 def grow_agent(source: SACState, template: SACState, p: TransferPlan, new_c, key: jax.Array) -> SACState:
     """The grown algorithm state: old actors and critic from ``source``, fresh new actors.
 
@@ -94,10 +113,7 @@ def grow_agent(source: SACState, template: SACState, p: TransferPlan, new_c, key
     of the new sub-spaces (None when ASRL is off).
     """
     n_src = jax.tree.leaves(source.actor)[0].shape[0]
-    rows = np.arange(len(p.agent_index))
-    # Stack [source agents; template agents] and pick, for every target row, the source row of an
-    # old sub-space or the fresh template row of a new one.
-    pick = np.where(p.is_new, n_src + rows, p.source_row)
+    pick = agent_rows(p, n_src)
     actor = select_agents(grow_agents(source.actor, template.actor), pick)
     new_rank = np.cumsum(p.is_new) - 1  # index among the new sub-spaces
     pick_c = np.where(p.is_new, n_src + new_rank, p.source_row)

@@ -203,6 +203,22 @@ def sample_actions(
     return action, log_prob
 
 
+def actor_policy(actors: Actors, params: Any, consts: Any, obs: jax.Array, key: jax.Array, deterministic: bool = False) -> tuple[jax.Array, jax.Array]:
+    """All agents' sub-actions for a batch of observations (Alg. 1 line 2).
+
+    ``obs [B, obs] -> (action [B, n, w], log_prob [B, n])``: the stacked ``actors`` applied to
+    every observation, then ``sample_actions`` with ``consts`` (``sac.AgentConsts``: dim_mask,
+    n_choices, default_action, valid); agents that are not ``valid`` get action 0, log-prob 0.
+    """
+    out = jax.vmap(lambda o: actors.apply({"params": params}, o))(obs)
+    keys = jax.random.split(key, obs.shape[0])
+    cfg = actors.config
+    sample = lambda o, k: sample_actions(o, consts.dim_mask, consts.n_choices, k, deterministic, cfg.gumbel_temperature, consts.default_action, cfg.prior_logit)
+    action, logp = jax.vmap(sample)(out, keys)
+    valid = consts.valid[None, :]
+    return jnp.where(valid[..., None], action, 0.0), jnp.where(valid, logp, 0.0)
+
+
 def grow_agents(params: Any, new_params: Any) -> Any:
     """Concatenate stacked agent params along axis 0: ``n`` old + ``n_new`` new actors.
 
