@@ -176,13 +176,14 @@ def sample_actions(
     log_det = 2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u))  # log(1 - tanh(u)^2), stable
     cont_value, cont_logp = jnp.tanh(u), log_normal - log_det
 
-    # Discrete: straight-through Gumbel-softmax over the valid grid values.
-    C = out.logits.shape[-1]
-    pad = out.mean.shape[-1] - out.logits.shape[-2]  # columns past discrete_width are never discrete
-    out_logits = jnp.pad(out.logits, [(0, 0)] * (out.logits.ndim - 2) + [(0, pad), (0, 0)])
-    grid, valid = _grid(n_choices, C)
+    # Discrete: straight-through Gumbel-softmax over the valid grid values, on the first
+    # ``dw`` columns only (columns past discrete_width are never discrete): the Gumbel noise
+    # of [n, dw, C] instead of [n, width, C] is most of the actor's cost on a CPU.
+    C, dw = out.logits.shape[-1], out.logits.shape[-2]
+    grid, valid = _grid(n_choices[..., :dw], C)
+    out_logits = out.logits
     if default is not None:  # the grid index nearest the default gets the prior bonus
-        default_index = jnp.round((default + 1.0) * 0.5 * jnp.maximum(n_choices - 1, 1))
+        default_index = jnp.round((default[..., :dw] + 1.0) * 0.5 * jnp.maximum(n_choices[..., :dw] - 1, 1))
         out_logits = out_logits + prior_logit * (jnp.arange(C) == default_index[..., None])
     logits = jnp.where(valid, out_logits, -1e9)  # exp underflows to exactly 0 in float32
     log_p = jax.nn.log_softmax(logits, -1)
@@ -197,6 +198,8 @@ def sample_actions(
     # entropy), as in discrete SAC: the sampled log p(k) has zero expected gradient under a
     # straight-through sample, so the entropy bonus would never act and the choice collapses.
     disc_logp = jnp.sum(jnp.where(valid, jnp.exp(log_p) * log_p, 0.0), -1)
+    pad = [(0, 0)] * (disc_value.ndim - 1) + [(0, mean.shape[-1] - dw)]
+    disc_value, disc_logp = jnp.pad(disc_value, pad), jnp.pad(disc_logp, pad)
 
     action = jnp.where(discrete, disc_value, jnp.where(continuous, cont_value, 0.0))
     log_prob = jnp.sum(jnp.where(discrete, disc_logp, 0.0) + jnp.where(continuous, cont_logp, 0.0), -1)
