@@ -17,7 +17,7 @@ from score_jax.checkpoint import CheckpointError
 from score_jax.config import TrainConfig
 from score_jax.report import final_evaluation, plot_learning_curve, render_policy
 from score_jax.robustness import run_sweep
-from score_jax.train_loop import NonFiniteError, train
+from score_jax.train_loop import NonFiniteError, train, with_best_policy
 
 
 def main(cfg: TrainConfig) -> int:
@@ -30,6 +30,7 @@ def main(cfg: TrainConfig) -> int:
     plot_learning_curve(os.path.join(run.run_dir, "metrics.csv"), os.path.join(run.run_dir, "learning_curve.png"), f"{run.config.algo} on {run.config.env}")
     print(f"learning curve: {os.path.join(run.run_dir, 'learning_curve.png')}")
     final_evaluation(run, run.config.eval_episodes)
+    run = with_best_policy(run)  # the sweep and the render show the best-evaluated policy, if kept
     if run.config.robustness_seeds:
         run_sweep(run, run.config.robustness_seeds)
     if run.config.render:

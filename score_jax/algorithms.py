@@ -10,7 +10,7 @@ import jax
 import numpy as np
 
 from score_jax import score
-from score_jax.evaluation import ActFn, EvalResult, evaluate
+from score_jax.evaluation import ActFn, EvalResult, make_evaluator
 from score_jax.trainer import OffPolicyAlgorithm
 
 
@@ -36,8 +36,14 @@ class Algorithm:
     and ``width``, and ``score_jax.external_loop`` drives the run."""
 
     def evaluate(self, run, state, n_episodes: int, n_failed=0, mode=0, key=None) -> EvalResult:
+        """Deterministic-policy episodes of ``state.agent`` (one compiled evaluator per run and
+        episode count, reused for every later call)."""
         key = jax.random.PRNGKey(run.config.seed + 10_000) if key is None else key
-        return evaluate(run.env, self.policy(state.agent), key, n_episodes, run.agent_index, n_failed, mode)
+        cache = self.__dict__.setdefault("_evaluators", {})  # frozen dataclass: a per-instance cache
+        slot = (id(run.env), tuple(int(i) for i in run.agent_index), int(n_episodes))
+        if slot not in cache:
+            cache[slot] = make_evaluator(run.env, self.policy, run.agent_index, n_episodes)
+        return cache[slot](state.agent, key, n_failed, mode)
 
 
 def action_width(cfg, env) -> int:
@@ -64,7 +70,7 @@ def make_score(cfg, env, agent_index, key, pretrain: bool = True, log=print) -> 
         frozen = score.pretrain(env, agent_index, sc, width, key_asrl, log=log, fixed_default=fixed)
     else:
         frozen = score.frozen_template(env, agent_index, sc, width)
-    consts = score.agent_consts(env.space, agent_index, width, frozen)
+    consts = score.agent_consts(env.space, agent_index, width, frozen, (sc.discrete_entropy_scale, sc.continuous_entropy_target))
     optimizers = score.make_optimizers(sc)
     if cfg.transfer_new:  # a fine-tuning run grown from a subset run (§4.3)
         from score_jax import transfer

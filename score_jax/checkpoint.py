@@ -35,15 +35,16 @@ def _fill_empty(tree: Any) -> Any:
     return jax.tree.map(lambda x: np.zeros((1,), np.asarray(x).dtype) if np.size(x) == 0 else x, tree)
 
 
-def checkpoint_dir(run_dir: str) -> str:
-    return os.path.join(os.path.abspath(run_dir), "checkpoints")
+def checkpoint_dir(run_dir: str, name: str = "checkpoints") -> str:
+    return os.path.join(os.path.abspath(run_dir), name)
 
 
 class Checkpointer:
-    """Saves/restores ``(state pytree, meta dict)`` pairs under ``run_dir/checkpoints``."""
+    """Saves/restores ``(state pytree, meta dict)`` pairs under ``run_dir/<name>``
+    (``checkpoints``: the training state; ``best``: the best-evaluated agent state)."""
 
-    def __init__(self, run_dir: str, max_to_keep: int = 3):
-        self.directory = checkpoint_dir(run_dir)
+    def __init__(self, run_dir: str, max_to_keep: int = 3, name: str = "checkpoints"):
+        self.directory = checkpoint_dir(run_dir, name)
         os.makedirs(self.directory, exist_ok=True)
         self.manager = ocp.CheckpointManager(self.directory, options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep))
 

@@ -44,8 +44,12 @@ class TrainConfig:
     """Save a checkpoint every this many environment steps; 0 = about 10 per run."""
     eval_episodes: int = 10
     """Episodes per evaluation (each a full season / episode)."""
-    eval_every: int = 0
-    """Evaluate the deterministic policy every this many env steps; 0 = only at the end."""
+    eval_every: int = -1
+    """Evaluate the deterministic policy every this many env steps; -1 = the environment's preset
+    (greenhouse: every 16k steps, spider: 20k), 0 = only at the end."""
+    keep_best: bool = True
+    """Keep the best-evaluated policy in <run-dir>/best and report it next to the last one (the
+    end-of-run robustness sweep and render use it); needs periodic evaluations."""
     robustness_seeds: int = 10
     """Seeds per setting of the robustness sweep run at the end (0 = skip it)."""
     render: bool = False
@@ -89,11 +93,19 @@ class TrainConfig:
 
 
 # Budgets that finish on a laptop CPU (see README for the measured wall times).
-PRESET_TOTAL_STEPS = {"greenhouse": 200_000, "spider": 200_000, "probe": 4_000}
+PRESET_TOTAL_STEPS = {"greenhouse": 160_000, "spider": 200_000, "probe": 4_000}
 
 
 def resolved_total_steps(cfg: TrainConfig) -> int:
     return cfg.total_steps or PRESET_TOTAL_STEPS[cfg.env]
+
+
+PRESET_EVAL_EVERY = {"greenhouse": 16_000, "spider": 20_000, "probe": 0}
+
+
+def resolved_eval_every(cfg: TrainConfig) -> int:
+    """Env steps between deterministic evaluations (0 = only at the end)."""
+    return PRESET_EVAL_EVERY.get(cfg.env, 0) if cfg.eval_every < 0 else cfg.eval_every
 
 
 def to_dict(cfg) -> dict:

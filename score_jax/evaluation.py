@@ -75,6 +75,23 @@ def evaluate(
     return EvalResult(ret, length)
 
 
+def make_evaluator(env: CompositeEnv, policy: Callable, agent_index, n_episodes: int):
+    """``evaluate`` compiled once with the agent's state an ARGUMENT (not a closed-over constant).
+
+    ``policy(agent_state) -> act_fn``. Returns ``fn(agent_state, key, n_failed=0, mode=0) ->
+    EvalResult``: evaluating a new set of parameters, or under other failures, reuses the same
+    executable (closing over the parameters instead would recompile, and constant-fold the
+    network, at every call).
+    """
+    agent_index = np.asarray(agent_index)
+
+    @jax.jit
+    def fn(agent_state, key, n_failed=0, mode=0):
+        return evaluate(env, policy(agent_state), key, n_episodes, agent_index, n_failed, mode)
+
+    return fn
+
+
 def random_act_fn(space, agent_index, width: int) -> ActFn:
     """A uniformly random policy over the controlled sub-spaces (the 'random' reference)."""
     return lambda state, key: sample_agent_actions(space, agent_index, key, state.obs.shape[:1], width)

@@ -32,18 +32,33 @@ def reference_policies(run) -> dict[str, ActFn]:
 
 
 def final_evaluation(run, n_episodes: int, log=print) -> dict:
-    """Mean/std return of the trained policy and each reference over the same seeds; printed as a table."""
+    """Mean/std return of the trained policy (the last one, and the best-evaluated one when the
+    run kept it) and of each reference, over the same seeds; printed as a table and written to
+    ``evaluation.json``."""
+    from score_jax.best_policy import has_best, restore_best
+
     key = jax.random.PRNGKey(run.config.seed + 20_000)
-    policies = {run.config.algo: run.algo.policy(run.state.agent), **reference_policies(run)}
+    learned = {run.config.algo: run.state.agent}
+    if has_best(run.run_dir):
+        agent, meta = restore_best(run.run_dir, run.state.agent)
+        learned[f"{run.config.algo} (best, step {meta['step']})"] = agent
     rows = {}
-    for name, act in policies.items():
+    for name, agent in learned.items():  # one compiled evaluator, the parameters an argument
+        r = np.asarray(run.algo.evaluate(run, run.state.replace(agent=agent), n_episodes, key=key).returns)
+        rows[name] = _stats(r)
+    for name, act in reference_policies(run).items():
         r = np.asarray(jax.jit(lambda k, act=act: evaluate(run.env, act, k, n_episodes, run.agent_index).returns)(key))
-        rows[name] = {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()), "max": float(r.max())}
-    lines = [f"{'policy':<10s} {'return mean':>12s} {'std':>9s} {'min':>10s} {'max':>10s}   ({n_episodes} episodes)"]
-    lines += [f"{k:<10s} {v['mean']:12.2f} {v['std']:9.2f} {v['min']:10.2f} {v['max']:10.2f}" for k, v in rows.items()]
+        rows[name] = _stats(r)
+    width = max(10, *(len(k) for k in rows))
+    lines = [f"{'policy':<{width}s} {'return mean':>12s} {'std':>9s} {'min':>10s} {'max':>10s}   ({n_episodes} episodes)"]
+    lines += [f"{k:<{width}s} {v['mean']:12.2f} {v['std']:9.2f} {v['min']:10.2f} {v['max']:10.2f}" for k, v in rows.items()]
     log("\n".join(lines))
     dump_json(os.path.join(run.run_dir, "evaluation.json"), {"episodes": n_episodes, "returns": rows})
     return rows
+
+
+def _stats(r: np.ndarray) -> dict:
+    return {"mean": float(r.mean()), "std": float(r.std()), "min": float(r.min()), "max": float(r.max())}
 
 
 def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:

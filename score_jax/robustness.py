@@ -14,6 +14,7 @@ import dataclasses
 import os
 import sys
 import time
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -123,9 +124,11 @@ def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
     """Sweep a trained run (see ``score_jax.train_loop.restore_run``), write JSON + PNG into its directory."""
     n = len(run.agent_index)
     settings = settings_grid(n, n_seeds)
-    sweep = jax.jit(make_sweep(run.env, run.algo.policy(run.state.agent), run.agent_index))
+    # The agent's state is an argument, not a constant of the program: XLA would otherwise
+    # constant-fold the networks into the executable (slow compiles, one per policy).
+    sweep = jax.jit(lambda agent, settings, key: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(settings, key))
     t0 = time.time()
-    returns = jax.block_until_ready(sweep(settings, jax.random.PRNGKey(run.config.seed + 30_000)))
+    returns = jax.block_until_ready(sweep(run.state.agent, settings, jax.random.PRNGKey(run.config.seed + 30_000)))
     seconds = time.time() - t0
     table = tabulate(returns, settings, n, n_seeds)
     dump_json(os.path.join(run.run_dir, "robustness.json"), {**table.to_dict(), "n_seeds": n_seeds, "seconds": seconds})
@@ -143,6 +146,8 @@ class RobustnessArgs:
     """A run directory written by train.py."""
     seeds: int = 10
     """Seeds per (count, mode) setting."""
+    policy: Literal["best", "last"] = "best"
+    """Sweep the run's best-evaluated policy (when it kept one) or its last one."""
 
 
 def main(args: RobustnessArgs) -> int:
@@ -150,7 +155,7 @@ def main(args: RobustnessArgs) -> int:
     from score_jax.train_loop import restore_run
 
     try:
-        run = restore_run(args.run_dir)
+        run = restore_run(args.run_dir, policy=args.policy)
     except CheckpointError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

@@ -84,9 +84,10 @@ PolicyFn = Callable[..., tuple[jax.Array, jax.Array]]
 QFn = Callable[..., jax.Array]
 
 
-def target_entropy(dim_mask, n_choices, discrete_scale: float = 0.3) -> jax.Array:
-    """``[n]`` entropy target: -1 per continuous dim, ``discrete_scale * log(n_choices)`` per discrete dim."""
-    per_dim = jnp.where(n_choices > 0, discrete_scale * jnp.log(jnp.maximum(n_choices, 1)), -1.0)
+def target_entropy(dim_mask, n_choices, discrete_scale: float = 0.1, continuous: float = -1.0) -> jax.Array:
+    """``[n]`` entropy target: ``continuous`` per continuous dim, ``discrete_scale * log(n_choices)``
+    per discrete dim (the entropy of a uniform choice scaled down)."""
+    per_dim = jnp.where(n_choices > 0, discrete_scale * jnp.log(jnp.maximum(n_choices, 1)), continuous)
     return jnp.sum(jnp.where(dim_mask, per_dim, 0.0), axis=-1)
 
 

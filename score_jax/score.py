@@ -40,9 +40,10 @@ class ScoreConfig:
     """HVAE training steps."""
     action_width: int = 0
     """Padded action width; 0 = the environment's full max_dim (so transfer can add sub-spaces)."""
-    actor_lr: float = 3e-4
-    """Adam step size of the actors."""
-    critic_lr: float = 3e-4
+    actor_lr: float = 1e-4
+    """Adam step size of the actors (a tenth of the critic's: Adam moves the actors by about
+    this much per update even when the critic's action gradient is mostly noise)."""
+    critic_lr: float = 1e-3
     """Adam step size of the critics (and of c_i when ASRL is off)."""
     alpha_lr: float = 3e-4
     """Adam step size of log alpha (automatic entropy tuning)."""
@@ -59,6 +60,12 @@ class ScoreConfig:
     (``env.reward_scale``: 0.05 for the greenhouse's cumulative reward, else 1)."""
     grad_clip: float = 10.0
     """Global-norm gradient clipping of actors and critics."""
+    discrete_entropy_scale: float = 0.1
+    """Entropy target of a discrete dim as a fraction of a uniform choice's, ``scale * log(n_choices)``.
+    Small enough that the deterministic (argmax) action is the choice the stochastic policy
+    mostly plays, so evaluation sees what training explored."""
+    continuous_entropy_target: float = -1.0
+    """Entropy target per continuous dim (SAC's usual -1 per dim)."""
 
 
 @struct.dataclass
@@ -112,13 +119,13 @@ class ScoreNetworks:
         return jax.vmap(apply)(obs, action, mask)
 
 
-def agent_consts(space: CompositeSpace, agent_index, width: int, frozen: FrozenInputs) -> AgentConsts:
+def agent_consts(space: CompositeSpace, agent_index, width: int, frozen: FrozenInputs, entropy: tuple[float, float] = (0.1, -1.0)) -> AgentConsts:
     """Per-agent arrays for the sub-spaces ``agent_index`` of ``space``, padded to ``width``."""
     idx = np.asarray(agent_index)
     dim_mask = pad_width(jnp.asarray(space.dim_mask[idx]), width, False)
     n_choices = pad_width(jnp.asarray(space.n_choices[idx]), width, 0)
     default = pad_width(jnp.asarray(space.default_action())[idx], width, 0.0)
-    return AgentConsts(dim_mask, n_choices, jnp.ones(len(idx), bool), target_entropy(dim_mask, n_choices), frozen, default)
+    return AgentConsts(dim_mask, n_choices, jnp.ones(len(idx), bool), target_entropy(dim_mask, n_choices, *entropy), frozen, default)
 
 
 def make_optimizers(cfg: ScoreConfig):

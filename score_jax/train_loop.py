@@ -24,7 +24,8 @@ import numpy as np
 import envs
 from score_jax import algorithms
 from score_jax.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
-from score_jax.config import TrainConfig, from_dict, resolved_total_steps, to_dict
+from score_jax.best_policy import BestPolicy, has_best, restore_best
+from score_jax.config import TrainConfig, from_dict, resolved_eval_every, resolved_total_steps, to_dict
 from score_jax.external_loop import ExternalTrainer, train_external
 from score_jax.trainer import Trainer, TrainState, make_data_mesh
 
@@ -147,6 +148,8 @@ def train(cfg: TrainConfig, log=print, on_epoch=None, initial_agent=None) -> Run
 
     steps_per_epoch = cfg.off_policy.num_envs * cfg.off_policy.steps_per_epoch
     ckpt_every = cfg.checkpoint_every or max(steps_per_epoch, (total // 10) // steps_per_epoch * steps_per_epoch)
+    eval_every = resolved_eval_every(cfg)
+    best = BestPolicy(run_dir, fresh=not cfg.resume) if cfg.keep_best and eval_every else None
     last_ckpt = int(state.env_steps)
     hyper = run.algo.off_policy.hyper
     progress = _progress(total, int(state.env_steps), cfg.quiet)
@@ -163,8 +166,12 @@ def train(cfg: TrainConfig, log=print, on_epoch=None, initial_agent=None) -> Run
                     f"The last good checkpoint (env step {last_ckpt}) is kept in {ckpt.directory}."
                 )
             eval_return = float("nan")
-            if cfg.eval_every and int(state.env_steps) // cfg.eval_every != (int(state.env_steps) - steps_per_epoch) // cfg.eval_every:
+            if eval_every and int(state.env_steps) // eval_every != (int(state.env_steps) - steps_per_epoch) // eval_every:
                 eval_return = float(np.mean(run.algo.evaluate(run, state, n_episodes=cfg.eval_episodes).returns))
+                if best is not None and best.offer(int(state.env_steps), eval_return, state.agent, _meta(run)):
+                    progress.write(f"env step {int(state.env_steps)}: evaluation {eval_return:.1f}, the best so far (saved to {best.ckpt.directory})", log)
+                else:
+                    progress.write(f"env step {int(state.env_steps)}: evaluation {eval_return:.1f}", log)
             row = _row(state, metrics, time.time() - t0, eval_return)
             writer.writerow(row)
             f.flush()
@@ -181,6 +188,8 @@ def train(cfg: TrainConfig, log=print, on_epoch=None, initial_agent=None) -> Run
         ckpt.save(int(state.env_steps), state, _meta(run))
     progress.close()
     ckpt.close()
+    if best is not None:
+        best.close()
     return run
 
 
@@ -200,13 +209,26 @@ class _progress:
                 self.bar.set_postfix_str(f"return {recent_return:.1f}", refresh=False)
             self.bar.update(n)
 
+    def write(self, message: str, log=print):
+        """A line above the bar (or through ``log`` when quiet)."""
+        if self.bar is not None:
+            self.bar.write(message, file=sys.stderr)
+        else:
+            log(message)
+
     def close(self):
         if self.bar is not None:
             self.bar.close()
 
 
-def restore_run(run_dir: str, log=print) -> Run:
-    """Rebuild a finished run from its latest checkpoint (for evaluation, sweeps and transfer)."""
+def restore_run(run_dir: str, log=print, policy: str = "last") -> Run:
+    """Rebuild a finished run from its latest checkpoint (for evaluation, sweeps and transfer).
+
+    ``policy="best"`` puts the best-evaluated agent state (``score_jax.best_policy``) in place of
+    the last one when the run kept one, and says so through ``log``.
+    """
+    if policy not in ("last", "best"):
+        raise ValueError(f"policy must be 'last' or 'best', got {policy!r}")
     ckpt = Checkpointer(run_dir)
     meta = ckpt.read_meta()
     cfg = from_dict(TrainConfig, meta["config"])
@@ -215,5 +237,18 @@ def restore_run(run_dir: str, log=print) -> Run:
     state, meta = ckpt.restore(run.trainer.init(key_train))
     check_space_matches(meta, cfg.env, run.env.space)
     ckpt.close()
+    if policy == "best" and has_best(run_dir):
+        agent, best_meta = restore_best(run_dir, state.agent)
+        state = state.replace(agent=agent)
+        log(f"using the best policy of {run_dir} (env step {best_meta['step']}, evaluation {best_meta['eval_return']:.1f})")
     run.state = run.trainer.place(state)
     return run
+
+
+def with_best_policy(run: Run, log=print) -> Run:
+    """``run`` with its best-evaluated agent state in place of the last one (unchanged if none)."""
+    if not has_best(run.run_dir):
+        return run
+    agent, meta = restore_best(run.run_dir, run.state.agent)
+    log(f"using the best policy (env step {meta['step']}, evaluation {meta['eval_return']:.1f}) from here on")
+    return dataclasses.replace(run, state=run.trainer.place(run.state.replace(agent=agent)))

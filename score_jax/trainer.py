@@ -44,7 +44,7 @@ class OffPolicyConfig:
     """Ring buffer size in transitions."""
     learning_starts: int = 400
     """Transitions collected with the uniform random policy before updates start."""
-    updates_per_step: int = 1
+    updates_per_step: int = 2
     """Gradient updates per vectorised environment step."""
     steps_per_epoch: int = 20
     """Vectorised environment steps per jitted epoch call."""
@@ -53,6 +53,14 @@ class OffPolicyConfig:
     The environment receives the failure-mode replacement and the critic masks those agents."""
     train_failure_mode: int = 0
     """Failure mode of ``train_failures``: 0 default, 1 random, 2 last (``FailureMode``)."""
+    exploration_hold: int = 0
+    """Steps an environment keeps the same exploration noise (the policy's random draw, i.e. the
+    Gaussian noise and Gumbel draws relative to the current mean and logits), redrawn every
+    this many steps of its episode and at every reset, as gSDE's ``sde_sample_freq`` (Raffin et
+    al. 2021). 1 = fresh noise every step; 0 = the environment's suggestion
+    (``env.exploration_hold``: 10 days for the greenhouse, else 1). Slow plants need it: a day of
+    one-hour irrigation is harmless, a week of it is not, and i.i.d. daily noise never shows
+    the critic a week of anything."""
 
 
 class OffPolicyAlgorithm(NamedTuple):
@@ -79,6 +87,7 @@ class TrainState:
     env_state: EnvState  # batched [num_envs], auto-resetting
     episode_return: jax.Array  # [num_envs] running return of the current episodes
     last_action: jax.Array  # [num_envs, n, max_dim] action the envs received last step (LAST failure mode)
+    explore_keys: jax.Array  # [num_envs, 2] each env's held exploration key (``exploration_hold``)
     key: jax.Array
     env_steps: jax.Array  # [] int32 transitions collected so far
     updates: jax.Array  # [] int32 gradient updates so far
@@ -113,6 +122,9 @@ class Trainer:
         self.agent_index = np.arange(env.space.n) if agent_index is None else np.asarray(agent_index)
         if len(self.agent_index) != algo.n_agents:
             raise ValueError(f"algorithm has {algo.n_agents} agents but agent_index has {len(self.agent_index)}")
+        self.hold = config.exploration_hold or int(getattr(env, "exploration_hold", 1))
+        if self.hold < 1:
+            raise ValueError(f"exploration_hold must be >= 0 (0 = the environment's suggestion), got {config.exploration_hold}")
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
@@ -130,6 +142,7 @@ class Trainer:
             env_state=env_state,
             episode_return=jnp.zeros(self.config.num_envs),
             last_action=jnp.broadcast_to(self.space.default_action(), (self.config.num_envs, self.space.n, self.space.max_dim)),
+            explore_keys=jax.random.split(jax.random.fold_in(key, 1), self.config.num_envs),
             key=key,
             env_steps=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
@@ -146,6 +159,7 @@ class Trainer:
         return state.replace(
             agent=put(state.agent, replicated), buffer=put(state.buffer, replicated), key=put(state.key, replicated),
             env_state=put(state.env_state, data), episode_return=put(state.episode_return, data), last_action=put(state.last_action, data),
+            explore_keys=put(state.explore_keys, data),
             env_steps=put(state.env_steps, replicated), updates=put(state.updates, replicated),
         )
 
@@ -159,7 +173,7 @@ class Trainer:
         state, hyper = carry
         cfg = self.config
         key, key_act, key_rand, key_upd, key_fail = jax.random.split(state.key, 5)
-        policy_action = self.algo.act(state.agent, state.env_state.obs, key_act, False)
+        policy_action, explore_keys = self._explore(state, key_act)
         explore = state.env_steps < cfg.learning_starts
         action = jnp.where(explore, sample_agent_actions(self.space, self.agent_index, key_rand, (cfg.num_envs,), self.algo.width), policy_action)
         env_action, active = self._apply_train_failures(agents_to_env_action(self.space, action, self.agent_index), state.last_action, key_fail)
@@ -192,10 +206,25 @@ class Trainer:
         agent, metrics, did = jax.lax.cond(learn, do_updates, skip, state.agent)
         state = TrainState(
             agent=agent, buffer=buffer, env_state=env_state, episode_return=ret * (1.0 - env_state.done), key=key,
-            last_action=env_action,
+            last_action=env_action, explore_keys=explore_keys,
             env_steps=env_steps, updates=state.updates + cfg.updates_per_step * did.astype(jnp.int32),
         )
         return (state, hyper), (metrics, did, completed, jnp.mean(env_state.reward))
+
+    def _explore(self, state: TrainState, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The stochastic policy's actions ``[num_envs, n, w]`` and the envs' exploration keys.
+
+        With ``hold > 1`` each env samples with its own key, redrawn when its episode step is a
+        multiple of ``hold`` (0 right after a reset): the same noise relative to the current
+        mean and logits for ``hold`` steps. ``act`` is vmapped over single environments, so this
+        works for every algorithm's ``act`` unchanged.
+        """
+        if self.hold == 1:
+            return self.algo.act(state.agent, state.env_state.obs, key, False), state.explore_keys
+        redraw = (state.env_state.t % self.hold) == 0
+        keys = jnp.where(redraw[:, None], jax.random.split(key, self.config.num_envs), state.explore_keys)
+        act_one = lambda obs, k: self.algo.act(state.agent, obs[None], k, False)[0]
+        return jax.vmap(act_one)(state.env_state.obs, keys), keys
 
     def _apply_train_failures(self, env_action, last_action, key):
         """Training-time failures through the shared failure function; returns

@@ -194,3 +194,28 @@ def test_training_time_failures_go_through_the_failure_function(finished_run):
     actions = np.asarray(state.buffer.data.action[:n])
     failed_rows, failed_agents = np.nonzero(~active)
     np.testing.assert_allclose(actions[failed_rows, failed_agents], default[failed_agents], atol=1e-6)
+
+
+def test_exploration_noise_is_held_for_hold_steps(finished_run):
+    """exploration_hold=3: an env redraws its exploration key only when its episode step is a
+    multiple of 3, and with a held key its stochastic action is a function of the observation
+    alone (the noise does not change)."""
+    from score_jax.trainer import Trainer
+
+    cfg = dataclasses.replace(finished_run.config.off_policy, exploration_hold=3)
+    trainer = Trainer(finished_run.env, finished_run.algo.off_policy, cfg, finished_run.agent_index)
+    state = trainer.init(jax.random.PRNGKey(5))
+    t = jnp.arange(cfg.num_envs) % 4  # steps 0, 1, 2, 3, 0, ... into the envs' episodes
+    state = state.replace(agent=finished_run.state.agent, env_state=state.env_state.replace(t=t))
+    a1, k1 = trainer._explore(state, jax.random.PRNGKey(10))
+    a2, k2 = trainer._explore(state, jax.random.PRNGKey(11))
+    redraw = np.asarray(t % 3 == 0)
+    kept = np.all(np.asarray(k1) == np.asarray(state.explore_keys), axis=1)
+    np.testing.assert_array_equal(kept, ~redraw)
+    np.testing.assert_array_equal(np.all(np.asarray(k1) == np.asarray(k2), axis=1), ~redraw)
+    same = np.all(np.asarray(a1) == np.asarray(a2), axis=(1, 2))
+    np.testing.assert_array_equal(same, ~redraw)  # held keys: same actions; redrawn: new noise
+    one_step = Trainer(finished_run.env, finished_run.algo.off_policy, dataclasses.replace(cfg, exploration_hold=1), finished_run.agent_index)
+    assert one_step.hold == 1 and trainer.hold == 3
+    with pytest.raises(ValueError, match="exploration_hold"):
+        Trainer(finished_run.env, finished_run.algo.off_policy, dataclasses.replace(cfg, exploration_hold=-2), finished_run.agent_index)

@@ -144,6 +144,12 @@ class GreenhouseEnv:
         (returns ~1000), so it is scaled to keep Q-values near 100; other modes are ~1 per day."""
         return 0.05 if self.config.reward == "cumulative" else 1.0
 
+    @property
+    def exploration_hold(self) -> int:
+        """Suggested days a learner keeps its exploration noise (``OffPolicyConfig.exploration_hold``):
+        the crop and the slab integrate actions over days, so a one-day deviation barely shows."""
+        return 10
+
     def expert_action(self, state: EnvState) -> jax.Array:
         """The documented grower heuristic (``envs.greenhouse.expert``): the reference policy."""
         from envs.greenhouse.expert import expert_action
