@@ -2,6 +2,8 @@
 
 - ``AutoReset``: restarts an episode in place when it ends, so a ``lax.scan`` rollout of a
   vmapped batch never stops (the learner's rollout and every baseline use it).
+- ``ActionRepeat``: one decision holds for ``k`` steps of the wrapped environment (brax's
+  ``action_repeat``, the frame skip of Atari agents); ``with_action_repeat`` applies it.
 
 ``envs.brax_flat.BraxFlatEnv`` (its own module, so that importing this one never imports brax
 and MuJoCo) exposes a CompositeEnv to ``brax.training.agents``.
@@ -54,3 +56,70 @@ class AutoReset:
         merged = jax.tree.map(lambda f, s: jnp.where(done, f, s), fresh, inner)
         merged = merged.replace(reward=inner.reward, done=inner.done, truncated=inner.truncated, metrics=inner.metrics)
         return merged.replace(sim=AutoResetSim(merged.sim, key)), inner.obs
+
+
+class ActionRepeat:
+    """Apply each action for ``repeat`` consecutive steps of ``env``; one decision = ``repeat`` steps.
+
+    ``reward`` is the sum of the inner rewards up to the end of the episode, ``done`` /
+    ``truncated`` / ``metrics`` are those of the last inner step taken; once the episode ends
+    inside a decision the remaining inner steps are skipped (the state stays terminal). The
+    episode is ``ceil(episode_length / repeat)`` decisions long, and the return of an episode
+    is exactly the wrapped environment's return, so policies of any decision interval compare
+    on one scale. ``obs`` is the observation after the last inner step; ``t`` counts inner
+    steps (the wrapped environment reads it).
+
+    Why: on the greenhouse a day's sub-action barely moves a 160-day season (one day at 23 °C
+    instead of 19 °C changes the scaled return by ~0.3 %), so a critic of daily decisions has to
+    resolve differences far below its own error; a decision held for a week has a k-fold
+    larger effect and the season has k-fold fewer decisions to propagate values over.
+    Other attributes (``expert_action``, ``reward_scale`` ...) are the wrapped environment's,
+    except ``reward_scale``, divided by ``repeat`` (a decision's reward sums ``repeat`` rewards).
+    """
+
+    def __init__(self, env: CompositeEnv, repeat: int):
+        if repeat < 1:
+            raise ValueError(f"action repeat must be >= 1, got {repeat}")
+        self.env, self.repeat = env, int(repeat)
+        self.name, self.space, self.observation_size = env.name, env.space, env.observation_size
+        self.episode_length = -(-env.episode_length // self.repeat)
+
+    def __getattr__(self, name):  # expert_action, mj_model, weather ...: the wrapped env's
+        if name == "env" or name.startswith("__"):  # not set yet (copy, pickle): no recursion
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    @property
+    def unwrapped(self) -> CompositeEnv:
+        return self.env
+
+    @property
+    def reward_scale(self) -> float:
+        return float(getattr(self.env, "reward_scale", 1.0)) / self.repeat
+
+    def reset(self, key: jax.Array) -> EnvState:
+        return self.env.reset(key)
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        def inner(carry, _):
+            s, total, ended = carry
+            nxt = self.env.step(s, action)
+            s = jax.tree.map(lambda old, new: jnp.where(ended > 0, old, new), s, nxt)
+            total = total + (1.0 - ended) * nxt.reward
+            return (s, total, jnp.maximum(ended, nxt.done)), None
+
+        zero = jnp.zeros((), jnp.float32)
+        (last, total, ended), _ = jax.lax.scan(inner, (state, zero, zero), None, self.repeat)
+        return last.replace(reward=total, done=ended)
+
+
+def with_action_repeat(env: CompositeEnv, repeat: int) -> CompositeEnv:
+    """``env`` itself for ``repeat == 1``, else ``ActionRepeat(env, repeat)``."""
+    return env if repeat == 1 else ActionRepeat(env, repeat)
+
+
+def unwrapped(env) -> CompositeEnv:
+    """The innermost environment below any ``ActionRepeat``."""
+    while isinstance(env, ActionRepeat):
+        env = env.env
+    return env

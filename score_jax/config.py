@@ -42,6 +42,10 @@ class TrainConfig:
     """Environment options as key=value (e.g. reward=profit discrete_hours=False)."""
     checkpoint_every: int = 0
     """Save a checkpoint every this many environment steps; 0 = about 10 per run."""
+    action_repeat: int = 0
+    """Environment steps one decision is held for (``envs.wrappers.ActionRepeat``); 0 = the
+    environment's suggestion (greenhouse: 8 days, others 1). Step counts (``--total-steps``,
+    ``--eval-every``, replay) count decisions; returns always sum the environment's rewards."""
     eval_episodes: int = 10
     """Episodes per evaluation (each a full season / episode)."""
     eval_every: int = -1
@@ -93,11 +97,18 @@ class TrainConfig:
 
 
 # Budgets that finish on a laptop CPU (see README for the measured wall times).
-PRESET_TOTAL_STEPS = {"greenhouse": 160_000, "spider": 200_000, "probe": 4_000}
+PRESET_TOTAL_STEPS = {"greenhouse": 160_000, "spider": 200_000, "probe": 4_000}  # decisions (see action_repeat)
 
 
 def resolved_total_steps(cfg: TrainConfig) -> int:
     return cfg.total_steps or PRESET_TOTAL_STEPS[cfg.env]
+
+
+def resolved_action_repeat(cfg: TrainConfig, env) -> int:
+    """``cfg.action_repeat``, or the environment's suggestion (``env.action_repeat``, else 1)."""
+    if cfg.action_repeat < 0:
+        raise ValueError(f"action_repeat must be >= 0 (0 = the environment's suggestion), got {cfg.action_repeat}")
+    return cfg.action_repeat or int(getattr(env, "action_repeat", 1))
 
 
 PRESET_EVAL_EVERY = {"greenhouse": 16_000, "spider": 20_000, "probe": 0}

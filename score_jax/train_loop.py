@@ -25,7 +25,8 @@ import envs
 from score_jax import algorithms
 from score_jax.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
 from score_jax.best_policy import BestPolicy, has_best, restore_best
-from score_jax.config import TrainConfig, from_dict, resolved_eval_every, resolved_total_steps, to_dict
+from envs.wrappers import with_action_repeat
+from score_jax.config import TrainConfig, from_dict, resolved_action_repeat, resolved_eval_every, resolved_total_steps, to_dict
 from score_jax.external_loop import ExternalTrainer, train_external
 from score_jax.trainer import Trainer, TrainState, make_data_mesh
 
@@ -63,6 +64,7 @@ def resolve_agent_index(space, names: tuple[str, ...]) -> np.ndarray:
 def build(cfg: TrainConfig, key: jax.Array, run_dir: str, restoring: bool = False, log=print) -> Run:
     """Environment, algorithm (incl. SCORE's ASRL stage unless ``restoring``) and trainer."""
     env = envs.make(cfg.env, **cfg.env_overrides())
+    env = with_action_repeat(env, resolved_action_repeat(cfg, env))
     agent_index = resolve_agent_index(env.space, cfg.agent_names())
     algo = algorithms.make(cfg, env, agent_index, key, pretrain=not restoring, log=log)
     mesh = make_data_mesh() if cfg.data_parallel and jax.device_count() > 1 else None

@@ -57,10 +57,8 @@ class OffPolicyConfig:
     """Steps an environment keeps the same exploration noise (the policy's random draw, i.e. the
     Gaussian noise and Gumbel draws relative to the current mean and logits), redrawn every
     this many steps of its episode and at every reset, as gSDE's ``sde_sample_freq`` (Raffin et
-    al. 2021). 1 = fresh noise every step; 0 = the environment's suggestion
-    (``env.exploration_hold``: 10 days for the greenhouse, else 1). Slow plants need it: a day of
-    one-hour irrigation is harmless, a week of it is not, and i.i.d. daily noise never shows
-    the critic a week of anything."""
+    al. 2021), counted in the environment's own steps (``EnvState.t``). 1 = fresh noise every
+    step; 0 = the environment's suggestion (``env.exploration_hold`` if it has one, else 1)."""
 
 
 class OffPolicyAlgorithm(NamedTuple):

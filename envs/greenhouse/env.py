@@ -145,10 +145,10 @@ class GreenhouseEnv:
         return 0.05 if self.config.reward == "cumulative" else 1.0
 
     @property
-    def exploration_hold(self) -> int:
-        """Suggested days a learner keeps its exploration noise (``OffPolicyConfig.exploration_hold``):
-        the crop and the slab integrate actions over days, so a one-day deviation barely shows."""
-        return 10
+    def action_repeat(self) -> int:
+        """Suggested days a learner's decision is held (``TrainConfig.action_repeat``): the crop and
+        the slab integrate actions over days, so one day's sub-action barely moves a season."""
+        return 8
 
     def expert_action(self, state: EnvState) -> jax.Array:
         """The documented grower heuristic (``envs.greenhouse.expert``): the reference policy."""

@@ -1,0 +1,67 @@
+"""ActionRepeat: a decision holds for k steps, returns are the wrapped env's, episodes end on time."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from envs.wrappers import ActionRepeat, unwrapped, with_action_repeat
+from score_jax.config import TrainConfig, resolved_action_repeat
+
+
+def test_repeat_sums_rewards_and_ends_with_the_wrapped_episode():
+    env = envs.make("probe", episode_length=10)
+    wrapped = ActionRepeat(env, 3)
+    assert wrapped.episode_length == 4 and wrapped.space == env.space and unwrapped(wrapped) is env
+    action = env.space.default_action()
+    key = jax.random.PRNGKey(0)
+    state = inner = env.reset(key)
+    inner_rewards, wrapped_rewards, dones = [], [], []
+    for _ in range(10):
+        inner = env.step(inner, action)
+        inner_rewards.append(float(inner.reward))
+    for _ in range(4):
+        state = jax.jit(wrapped.step)(state, action)
+        wrapped_rewards.append(float(state.reward))
+        dones.append(float(state.done))
+    np.testing.assert_allclose(wrapped_rewards, [sum(inner_rewards[0:3]), sum(inner_rewards[3:6]), sum(inner_rewards[6:9]), inner_rewards[9]], rtol=1e-5)
+    assert dones == [0.0, 0.0, 0.0, 1.0]
+    assert int(state.t) == 10  # the last decision stopped at the episode's end (2 inner steps skipped)
+    np.testing.assert_allclose(state.obs, inner.obs)
+
+
+def test_repeat_one_is_the_env_itself_and_suggestions_resolve():
+    env = envs.make("probe")
+    assert with_action_repeat(env, 1) is env
+    with pytest.raises(ValueError, match=">= 1"):
+        ActionRepeat(env, 0)
+    greenhouse = envs.make("greenhouse")
+    assert resolved_action_repeat(TrainConfig(), greenhouse) == greenhouse.action_repeat == 8
+    assert resolved_action_repeat(TrainConfig(action_repeat=2), greenhouse) == 2
+    assert resolved_action_repeat(TrainConfig(env="probe"), env) == 1
+    wrapped = ActionRepeat(greenhouse, 8)
+    assert wrapped.reward_scale == pytest.approx(greenhouse.reward_scale / 8)
+    assert wrapped.expert_action.__self__ is greenhouse  # other attributes are the wrapped env's
+    with pytest.raises(ValueError, match="action_repeat"):
+        resolved_action_repeat(TrainConfig(action_repeat=-1), greenhouse)
+
+
+def test_repeated_greenhouse_season_returns_the_daily_return():
+    """A constant policy gets the same season return whatever the decision interval."""
+    env = envs.make("greenhouse")
+    wrapped = ActionRepeat(env, 8)
+    action = env.space.default_action()
+
+    def season(e, n):
+        def step(c, _):
+            s, r = c
+            s = e.step(s, action)
+            return (s, r + s.reward), s.done
+        (s, r), done = jax.lax.scan(step, (e.reset(jax.random.PRNGKey(0)), 0.0), None, n)
+        return r, done
+
+    daily, _ = jax.jit(lambda: season(env, env.episode_length))()
+    weekly, done = jax.jit(lambda: season(wrapped, wrapped.episode_length))()
+    assert float(weekly) == pytest.approx(float(daily), rel=1e-5)
+    assert float(done[-1]) == 1.0 and float(jnp.sum(done)) == 1.0
