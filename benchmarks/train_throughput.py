@@ -28,8 +28,10 @@ RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
 def score_throughput(env_name: str, num_envs: int, batch: int, epochs: int, steps_per_epoch: int) -> dict:
+    # action_repeat=1 and one update per vectorised step: the same env steps and update schedule as brax SAC below.
     cfg = TrainConfig(
-        env=env_name, off_policy=OffPolicyConfig(num_envs=num_envs, batch_size=batch, learning_starts=0, steps_per_epoch=steps_per_epoch),
+        env=env_name, action_repeat=1,
+        off_policy=OffPolicyConfig(num_envs=num_envs, batch_size=batch, learning_starts=0, steps_per_epoch=steps_per_epoch, updates_per_step=1),
         score=ScoreConfig(asrl_steps=10),
     )
     run = train_loop.build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None)
