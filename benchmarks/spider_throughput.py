@@ -8,6 +8,12 @@ best-of-``--repeats``, so machine load hits both alike. Also measured at the lar
 the env with ``lean_step=False`` (plain ``mjx.step``), to show what ``envs.spider.physics``
 buys; its states must equal the lean ones.
 
+XLA's CPU backend runs one fused program on one core, whereas a batch of independent envs
+wants every core. The script therefore splits the CPU into one XLA host device per core
+(``--xla_force_host_platform_device_count``, set before jax starts) and measures each batch
+twice: on one device, and sharded over all of them on a ``data`` mesh axis (the same
+``jax.sharding`` layout the trainer uses). Plain MuJoCo stays one C thread, as the issue asks.
+
     python benchmarks/spider_throughput.py            # writes benchmarks/results/spider_throughput.{json,md}
 """
 
@@ -21,7 +27,11 @@ import platform
 import time
 from pathlib import Path
 
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "") and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={os.cpu_count()}".strip()
+
 import jax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 import mujoco
 import numpy as np
 
@@ -29,11 +39,15 @@ from envs.spider.env import make_spider
 from envs.spider.rollout import make_rollout, reset_batch
 
 
-def time_mjx(env, batch: int, steps: int, repeats: int) -> dict:
-    """Compile time and best physics steps/s of ``steps`` env steps on ``batch`` envs."""
+def time_mjx(env, batch: int, steps: int, repeats: int, mesh: Mesh | None = None) -> dict:
+    """Compile time and best physics steps/s of ``steps`` env steps on ``batch`` envs; with
+    ``mesh``, the env axis is sharded over its ``data`` axis (one CPU device per core)."""
     rollout = make_rollout(env)
     states = reset_batch(env, jax.random.PRNGKey(0), batch)
     actions = env.space.sample(jax.random.PRNGKey(1), (steps, batch))
+    if mesh is not None:
+        states = jax.device_put(states, NamedSharding(mesh, PartitionSpec("data")))
+        actions = jax.device_put(actions, NamedSharding(mesh, PartitionSpec(None, "data")))
     t0 = time.perf_counter()
     compiled = rollout.lower(states, actions).compile()
     compile_s = time.perf_counter() - t0
@@ -69,7 +83,7 @@ def time_mujoco(model: mujoco.MjModel, frame_skip: int, steps: int, repeats: int
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batches", type=int, nargs="+", default=[1, 256, 1024])
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 256, 512, 1024])
     parser.add_argument("--steps", type=int, default=100, help="env steps per timed MJX call")
     parser.add_argument("--mujoco-steps", type=int, default=2000, help="env steps per timed MuJoCo run")
     parser.add_argument("--repeats", type=int, default=3)
@@ -78,23 +92,28 @@ def main(argv=None) -> dict:
 
     env = make_spider()
     fs = env.config.frame_skip
+    n_dev = jax.device_count()
+    mesh = Mesh(np.array(jax.devices()), ("data",)) if n_dev > 1 else None
     rows = []
     mujoco_rates = []
     for batch in args.batches:
-        mujoco_rates.append(time_mujoco(env.mj_model, fs, args.mujoco_steps, args.repeats))
         steps = args.steps if batch > 1 else 4 * args.steps
-        r = time_mjx(env, batch, steps, args.repeats)
-        mujoco_rates.append(time_mujoco(env.mj_model, fs, args.mujoco_steps, args.repeats))
-        rows.append({"variant": "lean_step", "batch": batch, "env_steps": steps, "compile_s": r["compile_s"], "physics_steps_per_s": r["physics_steps_per_s"], "_qpos": r["final_qpos"]})
-        print(f"MJX batch {batch:5d}: {r['physics_steps_per_s']:>10,.0f} physics steps/s  (compile {r['compile_s']:.1f} s)", flush=True)
+        for devices in ([1, n_dev] if n_dev > 1 and batch % n_dev == 0 else [1]):
+            mujoco_rates.append(time_mujoco(env.mj_model, fs, args.mujoco_steps, args.repeats))
+            r = time_mjx(env, batch, steps, args.repeats, mesh if devices > 1 else None)
+            mujoco_rates.append(time_mujoco(env.mj_model, fs, args.mujoco_steps, args.repeats))
+            rows.append({"variant": "lean_step", "devices": devices, "batch": batch, "env_steps": steps, "compile_s": r["compile_s"], "physics_steps_per_s": r["physics_steps_per_s"], "_qpos": r["final_qpos"]})
+            print(f"MJX batch {batch:5d} on {devices} device(s): {r['physics_steps_per_s']:>10,.0f} physics steps/s  (compile {r['compile_s']:.1f} s)", flush=True)
 
     # A/B: plain mjx.step at the largest batch.
     big = max(args.batches)
     plain = make_spider(lean_step=False)
     r = time_mjx(plain, big, args.steps, args.repeats)
-    lean_row = next(x for x in rows if x["batch"] == big)
+    lean_row = next(x for x in rows if x["batch"] == big and x["devices"] == 1)
     same = bool(np.allclose(r["final_qpos"], lean_row["_qpos"], atol=1e-4, equal_nan=True))
-    rows.append({"variant": "mjx.step", "batch": big, "env_steps": args.steps, "compile_s": r["compile_s"], "physics_steps_per_s": r["physics_steps_per_s"], "_qpos": None})
+    sharded_row = next((x for x in rows if x["batch"] == big and x["devices"] > 1), None)
+    sharded_same = None if sharded_row is None else bool(np.allclose(sharded_row["_qpos"], lean_row["_qpos"], atol=1e-4, equal_nan=True))
+    rows.append({"variant": "mjx.step", "devices": 1, "batch": big, "env_steps": args.steps, "compile_s": r["compile_s"], "physics_steps_per_s": r["physics_steps_per_s"], "_qpos": None})
     print(f"MJX batch {big:5d} with plain mjx.step: {r['physics_steps_per_s']:,.0f} physics steps/s (states equal to lean_step: {same})")
     mujoco_rates.append(time_mujoco(env.mj_model, fs, args.mujoco_steps, args.repeats))
 
@@ -109,8 +128,9 @@ def main(argv=None) -> dict:
         "mujoco_physics_steps_per_s": mujoco_rate,
         "mujoco_runs": mujoco_rates,
         "mjx": rows,
-        "best": {"batch": best["batch"], "ratio_vs_mujoco": best["ratio_vs_mujoco"]},
+        "best": {"batch": best["batch"], "devices": best["devices"], "ratio_vs_mujoco": best["ratio_vs_mujoco"]},
         "lean_equals_mjx_step": same,
+        "sharded_equals_single_device": sharded_same,
         "machine": {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count(), "jax_devices": [str(d) for d in jax.devices()], "load_average": os.getloadavg()},
         "versions": {"jax": jax.__version__, "mujoco": mujoco.__version__},
     }
@@ -133,12 +153,15 @@ def markdown_table(result: dict) -> str:
         f"Plain MuJoCo (`mj_step`, one env, one Python thread): **{result['mujoco_physics_steps_per_s']:,.0f}** physics steps/s "
         f"(median of {len(result['mujoco_runs'])} interleaved runs).",
         "",
-        "| variant | batch | physics steps/s | MJX / MuJoCo | compile (s) |",
-        "|---|---:|---:|---:|---:|",
+        "| variant | devices | batch | physics steps/s | MJX / MuJoCo | compile (s) |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
     for r in result["mjx"]:
-        lines.append(f"| {r['variant']} | {r['batch']} | {r['physics_steps_per_s']:,.0f} | {r['ratio_vs_mujoco']:.2f} | {r['compile_s']:.1f} |")
-    lines += ["", f"Best: batch {result['best']['batch']}, ratio {result['best']['ratio_vs_mujoco']:.2f}. `lean_step` states equal `mjx.step` states: {result['lean_equals_mjx_step']}.", ""]
+        lines.append(f"| {r['variant']} | {r.get('devices', 1)} | {r['batch']} | {r['physics_steps_per_s']:,.0f} | {r['ratio_vs_mujoco']:.2f} | {r['compile_s']:.1f} |")
+    b = result["best"]
+    lines += ["", f"Best: batch {b['batch']} on {b.get('devices', 1)} device(s), ratio {b['ratio_vs_mujoco']:.2f}. "
+              f"`lean_step` states equal `mjx.step` states: {result['lean_equals_mjx_step']}; "
+              f"sharded states equal single-device states within 1e-4 after {result['mjx'][0]['env_steps'] // 4} chaotic env steps: {result.get('sharded_equals_single_device')}.", ""]
     return "\n".join(lines)
 
 
