@@ -97,7 +97,7 @@ class TrainConfig:
 
 
 # Budgets that finish on a laptop CPU (see README for the measured wall times).
-PRESET_TOTAL_STEPS = {"greenhouse": 160_000, "spider": 200_000, "probe": 4_000}  # decisions (see action_repeat)
+PRESET_TOTAL_STEPS = {"greenhouse": 144_000, "spider": 200_000, "probe": 4_000}  # decisions (see action_repeat)
 
 
 def resolved_total_steps(cfg: TrainConfig) -> int:

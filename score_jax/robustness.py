@@ -60,6 +60,20 @@ def make_sweep(env, act_fn: ActFn, agent_index, episodes_per_setting: int = 1):
     return sweep
 
 
+def shard_settings(settings: SweepSettings, devices=None) -> SweepSettings:
+    """Spread the settings axis over all devices (a ``data`` mesh), so the one-call sweep uses
+    every device: on a CPU split into one XLA host device per core
+    (``XLA_FLAGS=--xla_force_host_platform_device_count=N``), every core. XLA partitions the
+    vmapped program along that axis; settings stay on one device when S is not a multiple of
+    the device count or there is only one device."""
+    from score_jax.trainer import make_data_mesh
+
+    devices = jax.devices() if devices is None else devices
+    if len(devices) < 2 or settings.n_failed.shape[0] % len(devices):
+        return settings
+    return jax.device_put(settings, jax.sharding.NamedSharding(make_data_mesh(devices), jax.sharding.PartitionSpec("data")))
+
+
 @dataclasses.dataclass
 class SweepTable:
     """Statistics per (n_failed, mode) over seeds (and episodes)."""
@@ -123,7 +137,7 @@ def plot_sweep(table: SweepTable, path: str, title: str = "") -> None:
 def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
     """Sweep a trained run (see ``score_jax.train_loop.restore_run``), write JSON + PNG into its directory."""
     n = len(run.agent_index)
-    settings = settings_grid(n, n_seeds)
+    settings = shard_settings(settings_grid(n, n_seeds))
     # The agent's state is an argument, not a constant of the program: XLA would otherwise
     # constant-fold the networks into the executable (slow compiles, one per policy).
     sweep = jax.jit(lambda agent, settings, key: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(settings, key))

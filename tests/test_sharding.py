@@ -1,4 +1,5 @@
-"""The data-parallel epoch (two forced host devices, in a subprocess) equals the single-device one."""
+"""With two forced host devices (in a subprocess): the data-parallel epoch equals the
+single-device one, and so does the robustness sweep with its settings sharded."""
 
 import os
 import subprocess
@@ -25,6 +26,13 @@ assert int(a.updates) == 1
 np.testing.assert_allclose(a.env_state.obs, b.env_state.obs, rtol=1e-5, atol=1e-5)
 for x, y in zip(jax.tree.leaves(jax.device_get(a.agent)), jax.tree.leaves(jax.device_get(b.agent))):
     np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
+# the robustness sweep with its settings spread over both devices equals the one-device sweep
+from score_jax.robustness import make_sweep, settings_grid, shard_settings
+settings = settings_grid(len(run.agent_index), 2)
+sharded_settings = shard_settings(settings)
+assert len(sharded_settings.n_failed.sharding.device_set) == 2
+sweep = jax.jit(lambda agent, s, k: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(s, k))
+np.testing.assert_allclose(sweep(a.agent, settings, jax.random.PRNGKey(5)), sweep(a.agent, sharded_settings, jax.random.PRNGKey(5)), rtol=1e-5, atol=1e-5)
 print("SHARDED_OK", int(a.updates))
 """
 
