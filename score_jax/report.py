@@ -110,7 +110,7 @@ def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
 def _save(fig, ax, path: str, title: str, ylabel: str) -> None:
     import matplotlib.pyplot as plt
 
-    ax.set_xlabel("environment steps")
+    ax.set_xlabel("decisions (steps of the action-repeated env)")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
