@@ -38,6 +38,6 @@ print("SHARDED_OK", int(a.updates))
 
 
 def test_sharded_epoch_equals_single_device():
-    env = {**os.environ, "PYTHONPATH": ROOT, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env = {**os.environ, "PYTHONPATH": ROOT, "XLA_FLAGS": (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()}
     out = subprocess.run([sys.executable, "-c", SHARDED_SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert "SHARDED_OK" in out.stdout, out.stderr[-3000:]
