@@ -27,7 +27,7 @@ import jax.numpy as jnp
 from score_jax.algorithms import Algorithm, action_width, discrete_width
 from score_jax.baselines import marl_common as mc
 from score_jax.baselines.ddpg import DDPGHyper, DDPGState, make_ddpg_update
-from score_jax.networks.actor import Actors, actor_policy
+from score_jax.networks.actor import actor_policy
 from score_jax.networks.mlp import MLP
 from score_jax.sac import AgentConsts
 
@@ -44,19 +44,8 @@ class CentralCritic(nn.Module):
 
 
 @dataclasses.dataclass(frozen=True)
-class MADDPGNetworks:
+class MADDPGNetworks(mc.AgentNetworks):
     """Static structure of MADDPG for one (observation size, agent count, width)."""
-
-    config: object  # MarlConfig
-    obs_size: int
-    n_agents: int
-    width: int
-    max_choices: int
-    discrete_width: int
-
-    @property
-    def actors(self) -> Actors:
-        return Actors(self.config.actor, self.n_agents, self.width, self.max_choices, self.discrete_width)
 
     @property
     def critic(self) -> CentralCritic:

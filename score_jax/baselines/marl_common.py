@@ -118,9 +118,9 @@ def make_algorithm(name: str, init, act: Callable, update, hyper: Any, n_agents:
 
 
 @dataclasses.dataclass(frozen=True)
-class SACAgentNetworks:
-    """Stacked SAC actors of a SAC-based baseline (ISAC, MAAC); subclasses add the critic
-    (``critic`` module, ``q_fn`` and ``init_critic``)."""
+class AgentNetworks:
+    """Static structure shared by the multi-agent baselines: one (observation size, agent
+    count, width) and the stacked actors built from it."""
 
     config: Any  # MarlConfig
     obs_size: int
@@ -132,6 +132,12 @@ class SACAgentNetworks:
     @property
     def actors(self) -> Actors:
         return Actors(self.config.actor, self.n_agents, self.width, self.max_choices, self.discrete_width)
+
+
+@dataclasses.dataclass(frozen=True)
+class SACAgentNetworks(AgentNetworks):
+    """Stacked SAC actors of a SAC-based baseline (ISAC, MAAC); subclasses add the critic
+    (``critic`` module, ``q_fn`` and ``init_critic``)."""
 
     def policy_fn(self, actor_params, consts: AgentConsts, obs, key, deterministic=False):
         """``obs [B, obs] -> (action [B, n, w], log_prob [B, n])``."""
