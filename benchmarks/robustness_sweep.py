@@ -19,8 +19,7 @@ import json
 import os
 import time
 
-if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "") and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={os.cpu_count()}".strip()
+import cpu_devices  # noqa: F401  (before jax: one XLA host device per core)
 
 import jax
 import numpy as np
