@@ -154,7 +154,8 @@ def make_sac_update(
     """Returns ``update(state, batch, key, hyper) -> (state, SACMetrics)`` (pure; jit it or scan it).
 
     Critics, all actors (one stacked parameter tree), alpha and the Polyak targets are updated
-    in one function. The critic mask of each sample is ``valid & batch.active & DropNode``.
+    in one function; the critic and actor losses both use the parameters the update starts
+    from. The critic mask of each sample is ``valid & batch.active & DropNode``.
     """
 
     def update(state: SACState, batch: Transition, key: jax.Array, hyper: SACHyper):
@@ -163,16 +164,17 @@ def make_sac_update(
         valid = state.consts.valid & batch.active
         mask = jax.vmap(dropnode_mask, in_axes=(0, 0, None))(jax.random.split(key_drop, b), valid, hyper.dropnode_prob)
 
+        # Both losses read the critics of the start of the update (as brax's SAC does), so the
+        # critic's state-side forward pass (SCORE: e_o and the hypernetwork's GAT weights of
+        # o) is one computation shared by the two gradients.
         (c_loss, q_mean), c_grads = jax.value_and_grad(critic_loss, has_aux=True)(
             state.critic, state, batch, mask, key_critic, hyper, policy_fn, q_fn
         )
-        c_updates, critic_opt_state = critic_opt.update(c_grads, state.critic_opt, state.critic)
-        critic = optax.apply_updates(state.critic, c_updates)
-        state = state.replace(critic=critic, critic_opt=critic_opt_state)
-
         (a_loss, logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
             state.actor, state, batch, mask, key_actor, policy_fn, q_fn
         )
+        c_updates, critic_opt_state = critic_opt.update(c_grads, state.critic_opt, state.critic)
+        critic = optax.apply_updates(state.critic, c_updates)
         a_updates, actor_opt_state = actor_opt.update(a_grads, state.actor_opt, state.actor)
         actor = optax.apply_updates(state.actor, a_updates)
 
@@ -181,7 +183,10 @@ def make_sac_update(
         log_alpha = optax.apply_updates(state.log_alpha, al_update)
 
         target = optax.incremental_update(critic, state.target_critic, hyper.tau)
-        state = state.replace(actor=actor, actor_opt=actor_opt_state, log_alpha=log_alpha, alpha_opt=alpha_opt_state, target_critic=target)
+        state = state.replace(
+            actor=actor, critic=critic, target_critic=target, log_alpha=log_alpha,
+            actor_opt=actor_opt_state, critic_opt=critic_opt_state, alpha_opt=alpha_opt_state,
+        )
         metrics = SACMetrics(c_loss, a_loss, jnp.mean(jnp.exp(log_alpha)), -jnp.mean(jnp.sum(jnp.where(mask, logp, 0.0), -1)), q_mean)
         return state, metrics
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from score_jax.networks.critic import HyperNet
+from score_jax.networks.gat import flatten_gat_weights
 from score_jax.networks import (
     HVAE,
     CriticConfig,
@@ -158,13 +159,14 @@ def test_hypernet_switch_uses_the_same_gat(hvae_params, inputs):
     # The plain critic with the hypernet's output as its weights is the hypernet critic.
     obs = inputs[0]
     dims = (CCFG.agent_dim,) * (CCFG.gat_layers + 1)
-    flat = HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, obs)
+    # The per-layer weights it generates, flattened, are the plain critic's flat weight vector.
+    flat = flatten_gat_weights(HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, obs))
     same = {"p_w": hp["p_w"], "f_xi": hp["f_xi"], "gat": {"weights": flat}}
     q_hyper = hyper_critic.apply({"params": hp}, *inputs, hvae_params)
     np.testing.assert_allclose(plain_critic.apply({"params": same}, *inputs, hvae_params), q_hyper, rtol=1e-5)
     # ... and the hypernet's weights depend on the state, so a fixed GAT is a different function.
     other_obs = -obs
-    flat_other = HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, other_obs)
+    flat_other = flatten_gat_weights(HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, other_obs))
     assert not np.allclose(flat, flat_other)
     q_hyper_other = hyper_critic.apply({"params": hp}, other_obs, *inputs[1:], hvae_params)
     q_plain_other = plain_critic.apply({"params": same}, other_obs, *inputs[1:], hvae_params)
@@ -213,3 +215,17 @@ def test_twin_critic(hvae_params, inputs):
     batch = jax.tree_util.tree_map(lambda x: jnp.stack([x, x, x]), inputs)
     qb = jax.jit(jax.vmap(lambda *a: twin.apply({"params": params}, *a, hvae_params)))(*batch)
     assert qb.shape == (3, 2)
+
+
+def test_mlp_on_parts_is_the_mlp_on_their_concatenation():
+    # The critic and the action encoder feed [e_o, per-agent parts] as parts (ConcatDense):
+    # same parameters and the same function as the broadcast concatenation, less work.
+    from score_jax.networks.mlp import MLP
+
+    mlp = MLP((8,), 4)
+    e_o, actions, c = jnp.arange(3.0), jax.random.normal(jax.random.PRNGKey(1), (5, 2)), jnp.full((5, 1), 0.5)
+    full = jnp.concatenate([jnp.broadcast_to(e_o, (5, 3)), actions, c], -1)
+    params = mlp.init(jax.random.PRNGKey(0), full)
+    same_init = mlp.init(jax.random.PRNGKey(0), (e_o, actions, c))
+    jax.tree.map(np.testing.assert_array_equal, params, same_init)
+    np.testing.assert_allclose(mlp.apply(params, (e_o, actions, c)), mlp.apply(params, full), rtol=1e-5, atol=1e-6)

@@ -187,7 +187,9 @@ def sample_actions(
         out_logits = out_logits + prior_logit * (jnp.arange(C) == default_index[..., None])
     logits = jnp.where(valid, out_logits, -1e9)  # exp underflows to exactly 0 in float32
     log_p = jax.nn.log_softmax(logits, -1)
-    gumbel = jnp.zeros_like(logits) if deterministic else jax.random.gumbel(key_gumbel, logits.shape)
+    # One grid value per column (no discrete dims in the space, C == 1): the choice is certain,
+    # so the noise would change nothing; skipping it saves a random draw per update.
+    gumbel = jnp.zeros_like(logits) if (deterministic or C == 1) else jax.random.gumbel(key_gumbel, logits.shape)
     k = jnp.argmax(jnp.where(valid, logits + gumbel, -jnp.inf), -1)
     hard_value = jnp.take_along_axis(grid, k[..., None], -1)[..., 0]
     soft_value = jnp.sum(jax.nn.softmax((logits + gumbel) / temperature, -1) * grid, -1)

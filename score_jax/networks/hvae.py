@@ -198,12 +198,11 @@ class HVAE(nn.Module):
         """q_psi(z | o, a, c): ``obs [..., obs_size], action [..., width], dim_mask [..., width],
         c [..., c_dim] -> (mean [..., z], log_std [..., z])``. Padded columns are zeroed here,
         and the dim mask is an input, so sub-spaces of different widths stay distinguishable."""
-        mask_f = jnp.broadcast_to(dim_mask, action.shape).astype(jnp.float32)
+        mask_f = jnp.asarray(dim_mask, jnp.float32)
         e_o = self.encode_obs(obs)
-        batch = jnp.broadcast_shapes(e_o.shape[:-1], action.shape[:-1], c.shape[:-1])
-        parts = [e_o, action * mask_f, mask_f, c]
-        x = jnp.concatenate([jnp.broadcast_to(p, (*batch, p.shape[-1])) for p in parts], -1)
-        return gaussian_head(self.action_encoder(x), self.config.min_log_std, 2.0)
+        # The concatenation [e_o, a, mask, c] as parts: e_o (per sample) and mask, c (per agent)
+        # enter the first layer once each instead of once per (sample, agent) pair.
+        return gaussian_head(self.action_encoder((e_o, action * mask_f, mask_f, c)), self.config.min_log_std, 2.0)
 
     # --- decoders and priors --------------------------------------------------------------
     def decode(self, z: jax.Array, c: jax.Array) -> jax.Array:
