@@ -2,8 +2,9 @@
 
 Both use the same number of parallel environments, batch size and gradient updates per
 vectorised environment step; brax SAC sees the environment through ``BraxFlatEnv`` (a flat
-action). Reported: env steps/s and gradient updates/s after compilation, SCORE's update-step
-compile time, and the ratio SCORE / brax SAC (target >= 0.5).
+action). Reported: env steps/s and gradient updates/s after compilation (best of 3 timed
+stretches for both, brax's being its evaluation intervals), SCORE's update-step compile time,
+and the ratio SCORE / brax SAC (target >= 0.5).
 
     python benchmarks/train_throughput.py --envs greenhouse spider
 """

@@ -100,10 +100,12 @@ def test_update_moves_critic_towards_target_and_polyak_averages():
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-6), new.target_critic, expected_target)
 
 
-
 def test_actor_step_uses_the_critics_the_update_starts_from():
     # Both agents act tanh(w o) here, so Q's action term reaches the actor (the policy above cancels it).
-    same_sign = lambda actor, consts, obs, key, det: (jnp.abs(policy_fn(actor, consts, obs, key, det)[0]), policy_fn(actor, consts, obs, key, det)[1])
+    def same_sign(actor, consts, obs, key, det):
+        action, logp = policy_fn(actor, consts, obs, key, det)
+        return jnp.abs(action), logp
+
     state = _state()
     opt = optax.sgd(0.05)
     state = state.replace(actor_opt=opt.init(state.actor), critic_opt=opt.init(state.critic), alpha_opt=opt.init(state.log_alpha))

@@ -24,9 +24,8 @@ from typing import Any, Literal
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from score_jax.networks.gat import AGGREGATIONS, GATWeights, flatten_gat_weights, gat_num_params, gat_shapes, gat_stack, init_gat_weights, unflatten_gat_weights
+from score_jax.networks.gat import AGGREGATIONS, flatten_gat_weights, gat_num_params, gat_stack, init_gat_weights, unflatten_gat_weights
 from score_jax.networks.hvae import HVAE, HVAEConfig
 from score_jax.networks.mlp import MLP
 
@@ -100,15 +99,9 @@ class HyperNet(nn.Module):
         bias_init = lambda key, shape, dtype=jnp.float32: flatten_gat_weights(init_gat_weights(key, self.dims)).astype(dtype)
         kernel_init = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
         kernel, bias = _HyperOut(self.hidden, size, kernel_init, bias_init, name="out")()
-        weights, i = [], 0
-        for theta_shape, attn_shape in gat_shapes(self.dims):
-            blocks = []
-            for shape in (theta_shape, attn_shape):
-                n = int(np.prod(shape))
-                blocks.append((h @ kernel[:, i : i + n] + bias[i : i + n]).reshape(*h.shape[:-1], *shape))
-                i += n
-            weights.append(GATWeights(*blocks))
-        return weights
+        # The flat layout cut into per-tensor blocks: kernel blocks [hidden, *shape], bias blocks [*shape].
+        kernels, biases = unflatten_gat_weights(kernel, self.dims), unflatten_gat_weights(bias, self.dims)
+        return jax.tree.map(lambda k, b: jnp.tensordot(h, k, axes=1) + b, kernels, biases)
 
 
 class _HyperOut(nn.Module):

@@ -49,16 +49,11 @@ class MLP(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array | Sequence[jax.Array]) -> jax.Array:
+        dense = lambda x: ConcatDense if isinstance(x, (tuple, list)) else nn.Dense
+        for i, width in enumerate(self.hidden):
+            x = self.activation(dense(x)(width, kernel_init=self.kernel_init, name=f"dense_{i}")(x))
         out_init = self.out_kernel_init or self.kernel_init
-        widths = [*self.hidden, self.out_dim]
-        names = [f"dense_{i}" for i in range(len(self.hidden))] + ["out"]
-        inits = [self.kernel_init] * len(self.hidden) + [out_init]
-        for i, (width, name, init) in enumerate(zip(widths, names, inits)):
-            layer = ConcatDense if (i == 0 and isinstance(x, (tuple, list))) else nn.Dense
-            x = layer(width, kernel_init=init, name=name)(x)
-            if i < len(self.hidden):
-                x = self.activation(x)
-        return x
+        return dense(x)(self.out_dim, kernel_init=out_init, name="out")(x)
 
 
 def gaussian_head(raw: jax.Array, log_std_min: float = -6.0, log_std_max: float = 2.0) -> tuple[jax.Array, jax.Array]:
