@@ -22,7 +22,8 @@ Controllers (what a climate computer does with the hourly setpoints):
   (growers keep RH below ~85 % against Botrytis), only with outside air drier than that and
   only as far as spare heating capacity makes up for its heat loss (temperature first);
   (b) temperature, only while the heating is off: the extra flux that brings T down to the
-  ventilation setpoint (heating setpoint + ``vent_offset``); the sum is clipped to vent_max;
+  ventilation setpoint (heating setpoint + ``vent_offset``) by the end of the sub-step, all
+  the vents can give if even that is not enough; the sum is at most vent_max;
 - CO2: the dose that reaches the CO2 setpoint by the end of the sub-step, clipped to
   [0, co2_max]; it never removes CO2, and ventilation/leakage lose it;
 - energy screen: drawn in dark hours colder than ``screen_temp`` outside (standard in
@@ -36,6 +37,8 @@ sub-step length.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -118,6 +121,55 @@ class ClimateFlux:
     vent: jax.Array
 
 
+VENT_BISECTIONS = 16  # halvings of the spare vent range: the flux is resolved to 2^-16 of it
+
+
+@dataclasses.dataclass(frozen=True)
+class _UnheatedAir:
+    """The air temperature balance of one sub-step with the heating off, as a function of
+    extra ventilation (m/s on top of the air exchange already in ``g_pass``).
+
+    Fields: ``temp0`` °C at the start; ``q_free`` W/m² free gains (sun, lamps); ``g_pass``
+    W m^-2 K^-1 conductance to the outside air and the sky; ``drive`` W/m², those conductances
+    times their temperatures (``g_out T_out + u_sky T_sky``); ``temp_out`` °C; ``dt`` s.
+    """
+
+    temp0: jax.Array
+    q_free: jax.Array
+    g_pass: jax.Array
+    drive: jax.Array
+    temp_out: jax.Array
+    dt: float
+    p: ClimateParams
+
+    def end_temperature(self, extra_vent: jax.Array) -> jax.Array:
+        """Temperature at the end of the sub-step (the exact solution for frozen fluxes)."""
+        g_vent = self.p.air_heat_capacity * extra_vent
+        g = self.g_pass + g_vent
+        t_eq = (self.q_free + self.drive + g_vent * self.temp_out) / g
+        return t_eq + (self.temp0 - t_eq) * jnp.exp(-g * self.dt / self.p.heat_capacity)
+
+    def vent_to_reach(self, target: jax.Array, room: jax.Array) -> jax.Array:
+        """Extra flux in [0, room] that ends the sub-step at ``target`` (never above it): 0 if
+        the closed house ends there anyway, ``room`` if even that much leaves it warmer.
+
+        The flux changes the balance's decay rate as well as its equilibrium, so there is no
+        closed form. A formula that keeps the closed house's decay rate (the earlier one)
+        opens the vents too little when the air starts well below the target, e.g. a cold,
+        sunny morning, and lets the sub-step end kelvins above the vent line. Bisection only
+        needs the end temperature to be continuous in the flux; it need not be monotone
+        (outdoor air warmer than the house first warms it). Each halving keeps a flux that
+        is too small (``lo``) and one that is enough (``hi``), and ``hi`` is returned.
+        """
+        room = jnp.maximum(room, 0.0)
+        lo, hi = jnp.zeros_like(room), room
+        for _ in range(VENT_BISECTIONS):  # unrolled: XLA fuses the elementwise halvings
+            mid = 0.5 * (lo + hi)
+            too_warm = self.end_temperature(mid) > target
+            lo, hi = jnp.where(too_warm, mid, lo), jnp.where(too_warm, hi, mid)
+        return jnp.where(self.end_temperature(jnp.zeros_like(room)) <= target, 0.0, hi)
+
+
 def climate_substep(
     s: ClimateState,
     *,
@@ -156,7 +208,7 @@ def climate_substep(
         t_ref = (g_out * temp_out + u_sky * temp_sky) / g_pass  # where T settles unheated, dark
         e_pass = jnp.exp(-g_pass * dt / p.heat_capacity)
         t_eq_heat = (temp_sp - s.temp * e_pass) / (1.0 - e_pass)
-        return g_pass * (t_eq_heat - t_ref) - q_free, g_pass, t_ref, e_pass
+        return g_pass * (t_eq_heat - t_ref) - q_free, g_pass, t_ref
 
     # Humidity ventilation: the vent flux that carries the transpired vapour out at rh_max
     # (steady state). It only helps when the outside air is drier than the target (by >= 1
@@ -168,14 +220,12 @@ def climate_substep(
     spare = jnp.maximum(p.heat_max - jnp.maximum(demand_closed, 0.0), 0.0)
     vent_h = jnp.minimum(vent_h, spare / (c_air * jnp.maximum(temp_sp - temp_out, 1.0)))
 
-    demand, g_pass, t_ref, e_pass = heat_demand(vent_h)
+    demand, g_pass, t_ref = heat_demand(vent_h)
     heat = jnp.clip(demand, 0.0, p.heat_max)
-    # Temperature ventilation (heating off): the extra flux that settles T at the
-    # ventilation setpoint; when the outside is as warm as that setpoint, fully open.
-    t_vent = temp_sp + p.vent_offset
-    t_eq_vent = (t_vent - s.temp * e_pass) / (1.0 - e_pass)
-    excess = q_free - g_pass * (t_eq_vent - t_ref)
-    vent_t = jnp.clip(excess / (c_air * jnp.maximum(t_eq_vent - temp_out, 0.5)), 0.0, p.vent_max)
+    # Temperature ventilation (heating off): the extra flux that ends the sub-step at the
+    # ventilation setpoint, like the heating ends it at the heating setpoint.
+    unheated = _UnheatedAir(s.temp, q_free, g_pass, g_pass * t_ref, temp_out, dt, p)
+    vent_t = unheated.vent_to_reach(temp_sp + p.vent_offset, p.vent_max - vent_h)
     vent_t = jnp.where(heat > 0.0, 0.0, vent_t)
     vent = jnp.minimum(vent_h + vent_t, p.vent_max)
 
