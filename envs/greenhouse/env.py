@@ -199,9 +199,19 @@ class GreenhouseEnv:
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Simulate one day under ``action`` (normalised ``[4, 24]``, see ``actions.py``)."""
+        return self.step_schedule(state, decode_action(self.space, action, self.config.substeps_per_hour))
+
+    def step_schedule(self, state: EnvState, schedule: dict[str, jax.Array]) -> EnvState:
+        """Simulate one day under an already decoded hourly schedule.
+
+        ``schedule`` has the keys ``simulate_day`` reads (``actions.decode_action``):
+        ``temp_sp [24]`` °C, ``co2_sp [24]`` ppm, ``lamp [24, S]`` and ``irrigation [24, S]``
+        on-fractions. ``step`` is ``decode_action`` followed by this; it is separate so that a
+        planner can drive the simulator with a smooth relaxation of the schedule
+        (``references.py``) and still share every line of the day's physics and reward.
+        """
         cfg, cp, kp = self.config, self.crop_params, self.climate_params
         sim: GreenhouseSim = state.sim
-        schedule = decode_action(self.space, action, cfg.substeps_per_hour)
         today = self.weather.day(sim.start_doy + sim.day)
         res = simulate_day(sim.climate, sim.theta, sim.crop, today, schedule, cp, kp, self.water_params, cfg.substeps_per_hour)
         crop = crop_update(sim.crop, res.crop_day, cp)
