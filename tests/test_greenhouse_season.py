@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from envs.greenhouse.env import make_greenhouse
-from envs.greenhouse.expert import expert_action
+from envs.greenhouse.expert import expert_action, expert_schedule
 from envs.greenhouse.observation import denormalise
 from envs.greenhouse.season import expert_policy, format_summary, plot_season, run_season, summarize
 from envs.greenhouse.weather import STEFAN_BOLTZMANN, bundled_weather_path, load_weather, sky_temperature_from_clouds
@@ -210,11 +210,15 @@ def test_no_irrigation_hurts_yield(seasons):
     assert m.water_stress[dry, 30:].mean() > 0.5 > m.water_stress[wet].mean()
 
 
-def test_controllers_track_setpoints(seasons):
-    """Heating holds the 17 °C night setpoint; CO2 dosing reaches 700 ppm in the light in winter."""
+def test_controllers_track_setpoints(seasons, weathers):
+    """Heating holds the expert's (light-dependent) night setpoint; CO2 dosing reaches 700 ppm
+    in the light in winter."""
     indoor = np.asarray(denormalise(jnp.asarray(seasons["obs"][_row("greensboro", EXPERT)])))[:, :96].reshape(DAYS, 4, 24)
-    night = indoor[:60, 0, 1:4]  # 01:00-04:00 of the first 60 days
-    assert np.mean(np.abs(night - 17.0) < 0.5) > 0.8
+    env = make_greenhouse()
+    doy = (env.config.start_day_of_year - 1 + np.arange(DAYS)) % 365
+    setpoints = np.asarray(jax.vmap(lambda g: expert_schedule(g, env.climate_params))(weathers["greensboro"].ghi[doy]))
+    night, night_sp = indoor[:60, 0, 1:4], setpoints[:60, 0, 1:4]  # 01:00-04:00 of the first 60 days
+    assert np.mean(np.abs(night - night_sp) < 0.5) > 0.8
     noon_co2 = indoor[:30, 2, 10:14]
     assert np.mean(noon_co2 > 650.0) > 0.7
     m = seasons["metrics"]
