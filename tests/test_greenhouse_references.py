@@ -1,8 +1,8 @@
 """Greenhouse references (``envs.greenhouse.references``) and the light-dependent expert.
 
-The searches run with tiny budgets on a 70-day season (harvest starts near day 48, so the
-cumulative reward is not all zeros); one module fixture runs each search once and the tests
-read it. The expert test runs full 160-day seasons on both bundled climates.
+The searches run with tiny budgets on a 70-day season (long enough for the first harvests, so
+the cumulative reward is not all zeros); module fixtures run each search once and the tests
+read them. The expert test runs full 160-day seasons on both bundled climates.
 """
 
 import dataclasses

@@ -216,8 +216,9 @@ def test_controllers_track_setpoints(seasons, weathers):
     indoor = np.asarray(denormalise(jnp.asarray(seasons["obs"][_row("greensboro", EXPERT)])))[:, :96].reshape(DAYS, 4, 24)
     env = make_greenhouse()
     doy = (env.config.start_day_of_year - 1 + np.arange(DAYS)) % 365
-    setpoints = np.asarray(jax.vmap(lambda g: expert_schedule(g, env.climate_params))(weathers["greensboro"].ghi[doy]))
-    night, night_sp = indoor[:60, 0, 1:4], setpoints[:60, 0, 1:4]  # 01:00-04:00 of the first 60 days
+    ghi = weathers["greensboro"].ghi[doy]
+    setpoints = np.asarray(jax.vmap(lambda g: expert_schedule(g, env.climate_params))(ghi))
+    night, night_sp = indoor[:60, 0, 1:4], setpoints[:60, 0, 1:4]  # 01:00-04:00, first 60 days
     assert np.mean(np.abs(night - night_sp) < 0.5) > 0.8
     noon_co2 = indoor[:30, 2, 10:14]
     assert np.mean(noon_co2 > 650.0) > 0.7

@@ -4,7 +4,9 @@ Modules, one job each: ``config`` (static options), ``weather`` (EPW/TMY3 readin
 ``actions`` (Table 1 action space, schedules), ``climate`` (energy/CO2/humidity balances and
 controllers), ``crop`` (reduced TOMGRO), ``water`` (slab water balance), ``simulate`` (one day
 of hourly sub-steps), ``observation`` (the 225-dim normalised observation), ``env`` (the
-``CompositeEnv``), ``expert`` (grower heuristic), ``season`` (whole seasons, summary, plot).
+``CompositeEnv``), ``expert`` (grower heuristic), ``season`` (whole seasons, summary, plot),
+``references`` (best constant and open-loop schedules found by search on the simulator; import
+it directly: it pulls in optax).
 """
 
 from envs.greenhouse.actions import greenhouse_space

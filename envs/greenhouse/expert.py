@@ -87,7 +87,8 @@ def expert_schedule(ghi_today: jax.Array, params: ClimateParams | None = None) -
     temp = jnp.where(light, day_temp, night_temp)
     co2 = jnp.where(light, LIGHT_CO2, DARK_CO2)
     pair = lambda a, b: jnp.zeros((24,), jnp.float32).at[0].set(a).at[1].set(b)  # noqa: E731
-    return jnp.stack([temp, co2, pair(lamp_start, lamp_end), pair(*IRRIGATION_HOURS)]).astype(jnp.float32)
+    rows = [temp, co2, pair(lamp_start, lamp_end), pair(*IRRIGATION_HOURS)]
+    return jnp.stack(rows).astype(jnp.float32)
 
 
 def expert_action(env, state: EnvState) -> jax.Array:

@@ -26,7 +26,8 @@ simulator itself achieves:
   keyed by the environment (config, weather and parameter arrays) and the simulator's source
   code, so an end-of-run report pays the search once per environment and code version.
 
-Pure JAX; imports nothing beyond ``envs.greenhouse`` and ``score_jax.spaces``.
+Pure JAX (with optax for Adam); of the project it imports only ``envs.greenhouse`` and
+``score_jax.spaces``, so neither MuJoCo nor brax is loaded.
 """
 
 from __future__ import annotations
