@@ -1,11 +1,11 @@
 """SCORE, its ablations and every baseline on the same env-step budget and seeds (§5, Tables 2/3,
 Figs. 6/8).
 
-    python benchmarks/compare.py                                 # greenhouse, small budget, 3 seeds
+    python benchmarks/compare.py                 # greenhouse, small budget, 3 seeds
     python benchmarks/compare.py --envs spider --algos score sac isac --seeds 3
-    python benchmarks/compare.py --transfer                      # + Initial / Converge on unseen sub-spaces
-    python benchmarks/compare.py --budget paper                  # 1 M env steps per run (the figures' scale)
-    python benchmarks/compare.py --base.single.hidden 64 64      # any train.py setting for every run
+    python benchmarks/compare.py --transfer      # + Initial / Converge on unseen sub-spaces
+    python benchmarks/compare.py --budget paper  # 1 M env steps per run (the figures' scale)
+    python benchmarks/compare.py --base.single.hidden 64 64  # any train.py setting for every run
 
 Every row (algorithm or SCORE ablation) trains ``--seeds`` runs with ``--eval-every`` set, then
 evaluates the final deterministic policy (``--eval-episodes`` episodes per seed). Per
@@ -46,26 +46,52 @@ import tyro
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from score_jax import algorithms, train_loop  # noqa: E402
-from score_jax.config import TrainConfig, to_dict  # noqa: E402
+from score_jax import registry  # noqa: E402
+from score_jax.evaluation.transfer import TransferArgs, run_transfer  # noqa: E402
+from score_jax.run.build import build  # noqa: E402
+from score_jax.run.config import TrainConfig, to_dict  # noqa: E402
+from score_jax.run.driver import train  # noqa: E402
 
-BUDGETS = {"small": {"greenhouse": 20_000, "spider": 20_000, "probe": 2_000}, "paper": {"greenhouse": 1_000_000, "spider": 1_000_000, "probe": 20_000}}
-SUBSETS = {"greenhouse": "co2,lighting", "spider": "leg_front_left,leg_front_right,leg_back_left,leg_back_right,leg_front,leg_back", "probe": "a,b"}
-LABELS = {"score": "SCORE", "sac": "SAC", "ppo": "PPO", "hppo": "H-PPO", "isac": "ISAC", "maddpg": "MADDPG", "maac": "MAAC", "qmix": "QMIX"}
-FIXED_WIDTH = ("sac", "ppo", "hppo", "maddpg")  # networks sized for the full space: transfer variants (Table 3)
+BUDGETS = {
+    "small": {"greenhouse": 20_000, "spider": 20_000, "probe": 2_000},
+    "paper": {"greenhouse": 1_000_000, "spider": 1_000_000, "probe": 20_000},
+}
+SUBSETS = {
+    "greenhouse": "co2,lighting",
+    "spider": "leg_front_left,leg_front_right,leg_back_left,leg_back_right,leg_front,leg_back",
+    "probe": "a,b",
+}
+LABELS = {
+    "score": "SCORE",
+    "sac": "SAC",
+    "ppo": "PPO",
+    "hppo": "H-PPO",
+    "isac": "ISAC",
+    "maddpg": "MADDPG",
+    "maac": "MAAC",
+    "qmix": "QMIX",
+}
+FIXED_WIDTH = (
+    "sac",
+    "ppo",
+    "hppo",
+    "maddpg",
+)  # networks sized for the full space: transfer variants (Table 3)
 AGG = {"attention": "AL", "mean": "MF", "sum": "SF"}
 
 
 @dataclasses.dataclass(frozen=True)
 class CompareArgs:
-    """Train every selected algorithm and SCORE ablation on the same budget and seeds; write tables and curves."""
+    """Train every selected algorithm and SCORE ablation on the same budget and seeds; write
+    tables and curves."""
 
     envs: tuple[Literal["greenhouse", "spider", "probe"], ...] = ("greenhouse",)
     """Environments to compare on."""
     algos: tuple[str, ...] = ()
     """Algorithms (registry names); empty = score and every registered baseline."""
     ablations: Literal["none", "single", "full"] = "single"
-    """SCORE ablation rows (Table 2): single = aggregation mean / sum, no hypernet, no ASRL; full = all 11 combinations."""
+    """SCORE ablation rows (Table 2): single = aggregation mean / sum, no hypernet, no ASRL;
+    full = all 11 combinations."""
     seeds: int = 3
     """Seeds per row (0 .. seeds-1)."""
     budget: Literal["small", "paper"] = "small"
@@ -73,7 +99,8 @@ class CompareArgs:
     total_steps: int = 0
     """Env steps per run; overrides --budget when > 0."""
     transfer: bool = False
-    """Also train on --transfer-subspaces and fine-tune on the full space (Initial / Converge columns)."""
+    """Also train on --transfer-subspaces and fine-tune on the full space (Initial / Converge
+    columns)."""
     transfer_subspaces: str = ""
     """Subset of the transfer protocol; empty = the paper's for the environment."""
     variants: tuple[Literal["plain", "mask", "penalty"], ...] = ("plain", "mask", "penalty")
@@ -92,17 +119,28 @@ class CompareArgs:
 
 def rows(args: CompareArgs) -> list[tuple[str, str, dict]]:
     """``(label, algo, TrainConfig overrides)`` of every row; ablations change SCORE's critic."""
-    out = [(LABELS.get(a, a.upper()), a, {}) for a in (args.algos or tuple(algorithms.REGISTRY))]
+    out = [
+        (LABELS.get(a, a.upper()), a, {}) for a in (args.algos or tuple(registry.algorithm_names()))
+    ]
     if args.ablations != "none" and "score" in [r[1] for r in out]:
         combos = [(asrl, agg, hn) for asrl in (True, False) for agg in AGG for hn in (True, False)]
         if args.ablations == "single":
-            combos = [(True, "mean", True), (True, "sum", True), (True, "attention", False), (False, "attention", True)]
+            combos = [
+                (True, "mean", True),
+                (True, "sum", True),
+                (True, "attention", False),
+                (False, "attention", True),
+            ]
         for asrl, agg, hn in combos:
             if (asrl, agg, hn) == (True, "attention", True):
                 continue
             label = "+".join((["ASRL"] if asrl else []) + [AGG[agg]] + (["HN"] if hn else []))
-            critic = dataclasses.replace(args.base.score.critic, aggregation=agg, hypernet=hn, asrl=asrl)
-            out.append((label, "score", {"score": dataclasses.replace(args.base.score, critic=critic)}))
+            critic = dataclasses.replace(
+                args.base.score.critic, aggregation=agg, hypernet=hn, asrl=asrl
+            )
+            out.append(
+                (label, "score", {"score": dataclasses.replace(args.base.score, critic=critic)})
+            )
     return out
 
 
@@ -113,7 +151,11 @@ def _mean_std(values) -> dict:
 
 def _curve(run_dir: str) -> dict:
     with open(os.path.join(run_dir, "metrics.csv")) as f:
-        points = [(int(r["env_steps"]), float(r["eval_return"])) for r in csv.DictReader(f) if r["eval_return"] not in ("", "nan")]
+        points = [
+            (int(r["env_steps"]), float(r["eval_return"]))
+            for r in csv.DictReader(f)
+            if r["eval_return"] not in ("", "nan")
+        ]
     return {"steps": [p[0] for p in points], "returns": [p[1] for p in points]}
 
 
@@ -137,7 +179,7 @@ def _key(cfg: TrainConfig, **extra) -> dict:
 
 def final_return(run, n_episodes: int) -> float:
     """Mean return of the run's final (last) deterministic policy over ``n_episodes`` episodes."""
-    return float(np.mean(run.algo.evaluate(run, run.state, n_episodes).returns))
+    return float(np.mean(run.evaluate(run.state.agent, n_episodes).returns))
 
 
 def run_full(cfg: TrainConfig, n_episodes: int) -> dict:
@@ -147,7 +189,7 @@ def run_full(cfg: TrainConfig, n_episodes: int) -> dict:
     if cached is not None:
         return cached
     _fresh(cfg.run_dir)
-    run = train_loop.train(cfg, log=lambda *a: None)
+    run = train(cfg, log=lambda *a: None)
     result = {"key": key, "return": final_return(run, n_episodes), "curve": _curve(cfg.run_dir)}
     json.dump(result, open(path, "w"))
     return result
@@ -156,33 +198,49 @@ def run_full(cfg: TrainConfig, n_episodes: int) -> dict:
 def run_transfer_pair(cfg: TrainConfig, target: str, steps: int, n_episodes: int) -> dict:
     """Train ``cfg`` (a subset run), then fine-tune it on the full space with transfer.py into
     ``target``: the Initial and Converge returns and the fine-tuning curve."""
-    from transfer import TransferArgs, run_transfer
-
     path, key = os.path.join(target, "result.json"), _key(cfg, episodes=n_episodes, steps=steps)
     cached = _cached(path, key)
     if cached is not None:
         return cached
     run_full(cfg, n_episodes)
     _fresh(target)
-    res = run_transfer(TransferArgs(checkpoint=cfg.run_dir, total_steps=steps, run_dir=target, eval_episodes=n_episodes, quiet=True), log=lambda *a: None)
-    result = {"key": key, "initial": res["initial"]["mean"], "converge": res["converge"]["mean"], "curve": _curve(target)}
+    res = run_transfer(
+        TransferArgs(
+            checkpoint=cfg.run_dir,
+            total_steps=steps,
+            run_dir=target,
+            eval_episodes=n_episodes,
+            quiet=True,
+        ),
+        log=lambda *a: None,
+    )
+    result = {
+        "key": key,
+        "initial": res["initial"]["mean"],
+        "converge": res["converge"]["mean"],
+        "curve": _curve(target),
+    }
     json.dump(result, open(path, "w"))
     return result
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _grows(cfg: TrainConfig) -> bool:
-    run = train_loop.build(cfg, jax.random.PRNGKey(0), cfg.run_dir, restoring=True, log=lambda *a: None)
+    run = build(cfg, jax.random.PRNGKey(0), cfg.run_dir, restoring=True, log=lambda *a: None)
     return run.algo.grow is not None
 
 
 def can_transfer(cfg: TrainConfig) -> bool:
     """Whether transfer.py can take a run of ``cfg``'s algorithm (``Algorithm.grow`` is set);
     checked before training its subset run. One that cannot is listed once, not trained."""
-    if _grows(dataclasses.replace(cfg, seed=0, run_dir="", subspaces="")):
+    if _grows(dataclasses.replace(cfg, seed=0, run_dir=None, subspaces=None)):
         return True
     if cfg.seed == 0:
-        print(f"{cfg.algo}: transfer.py cannot grow its runs (networks tied to fixed sub-spaces); no transfer rows", flush=True)
+        print(
+            f"{cfg.algo}: transfer.py cannot grow its runs (networks tied to fixed sub-spaces); "
+            "no transfer rows",
+            flush=True,
+        )
     return False
 
 
@@ -192,23 +250,61 @@ def compare_env(args: CompareArgs, env: str) -> dict:
     jobs = []  # (label, kind, cfg, transfer target dir) with kind "full" or "transfer"
     for label, algo, overrides in rows(args):
         for seed in range(args.seeds):
-            cfg = dataclasses.replace(args.base, env=env, algo=algo, seed=seed, total_steps=steps, eval_every=max(1, steps // args.eval_points),
-                                      eval_episodes=args.eval_episodes, robustness_seeds=0, quiet=True, **overrides)
+            cfg = dataclasses.replace(
+                args.base,
+                env=env,
+                algo=algo,
+                seed=seed,
+                total_steps=steps,
+                eval_every=max(1, steps // args.eval_points),
+                eval_episodes=args.eval_episodes,
+                robustness_seeds=0,
+                quiet=True,
+                **overrides,
+            )
             slug = label.replace("+", "_").lower()
-            jobs.append((label, "full", dataclasses.replace(cfg, run_dir=os.path.join(args.work_dir, env, slug, f"s{seed}")), None))
+            jobs.append(
+                (
+                    label,
+                    "full",
+                    dataclasses.replace(
+                        cfg, run_dir=os.path.join(args.work_dir, env, slug, f"s{seed}")
+                    ),
+                    None,
+                )
+            )
             if not args.transfer or not can_transfer(cfg):
                 continue
-            for variant in (args.variants if algo in FIXED_WIDTH else ("plain",)):
+            for variant in args.variants if algo in FIXED_WIDTH else ("plain",):
                 name = label if variant == "plain" else f"{label}-{variant}"
-                vcfg = dataclasses.replace(cfg, subspaces=subset, single=dataclasses.replace(cfg.single, transfer_variant=variant),
-                                           run_dir=os.path.join(args.work_dir, env, f"{slug}-{variant}-subset", f"s{seed}"))
-                jobs.append((name, "transfer", vcfg, os.path.join(args.work_dir, env, f"{slug}-{variant}-transfer", f"s{seed}")))
+                vcfg = dataclasses.replace(
+                    cfg,
+                    subspaces=subset,
+                    single=dataclasses.replace(cfg.single, transfer_variant=variant),
+                    run_dir=os.path.join(
+                        args.work_dir, env, f"{slug}-{variant}-subset", f"s{seed}"
+                    ),
+                )
+                jobs.append(
+                    (
+                        name,
+                        "transfer",
+                        vcfg,
+                        os.path.join(args.work_dir, env, f"{slug}-{variant}-transfer", f"s{seed}"),
+                    )
+                )
     results, errors, t0 = {}, {}, time.time()
     for i, (label, kind, cfg, target) in enumerate(jobs):
         t = time.time()
-        print(f"[{env} {i + 1}/{len(jobs)}] {label} {kind} seed {cfg.seed} ...", end=" ", flush=True)
+        print(
+            f"[{env} {i + 1}/{len(jobs)}] {label} {kind} seed {cfg.seed} ...", end=" ", flush=True
+        )
         try:
-            res = run_full(cfg, args.eval_episodes) if kind == "full" else run_transfer_pair(cfg, target, steps, args.eval_episodes)
+            res = (
+                run_full(cfg, args.eval_episodes)
+                if kind == "full"
+                else run_transfer_pair(cfg, target, steps, args.eval_episodes)
+            )
         except Exception as e:  # one failing algorithm must not stop the comparison; it is reported
             errors.setdefault(f"{label} ({kind})", f"{type(e).__name__}: {e}")
             print(f"FAILED ({type(e).__name__}: {str(e)[:200]})", flush=True)
@@ -219,35 +315,64 @@ def compare_env(args: CompareArgs, env: str) -> dict:
     return summarise(args, env, steps, subset, results, errors)
 
 
-def summarise(args: CompareArgs, env: str, steps: int, subset: str, results: dict, errors: dict) -> dict:
+def summarise(
+    args: CompareArgs, env: str, steps: int, subset: str, results: dict, errors: dict
+) -> dict:
     table = {}
     for (label, kind), res in results.items():
         entry = table.setdefault(label, {})
         if kind == "full":
-            entry["full"] = {**_mean_std([r["return"] for r in res]), "curves": [r["curve"] for r in res]}
+            entry["full"] = {
+                **_mean_std([r["return"] for r in res]),
+                "curves": [r["curve"] for r in res],
+            }
         else:
             entry["initial"] = _mean_std([r["initial"] for r in res])
-            entry["converge"] = {**_mean_std([r["converge"] for r in res]), "curves": [r["curve"] for r in res]}
-    out = {"env": env, "total_steps": steps, "seeds": args.seeds, "eval_episodes": args.eval_episodes,
-           "transfer_subspaces": subset if args.transfer else None, "rows": table, "errors": errors}
+            entry["converge"] = {
+                **_mean_std([r["converge"] for r in res]),
+                "curves": [r["curve"] for r in res],
+            }
+    out = {
+        "env": env,
+        "total_steps": steps,
+        "seeds": args.seeds,
+        "eval_episodes": args.eval_episodes,
+        "transfer_subspaces": subset if args.transfer else None,
+        "rows": table,
+        "errors": errors,
+    }
     os.makedirs(args.out, exist_ok=True)
     base = os.path.join(args.out, f"compare_{env}")
     json.dump(out, open(base + ".json", "w"), indent=1)
     open(base + ".md", "w").write(markdown(out, args.transfer))
-    plot({k: v["full"]["curves"] for k, v in table.items() if "full" in v}, base + ".png", f"{env}: full sub-action spaces ({steps} env steps)")
+    plot(
+        {k: v["full"]["curves"] for k, v in table.items() if "full" in v},
+        base + ".png",
+        f"{env}: full sub-action spaces ({steps} env steps)",
+    )
     if args.transfer:
-        plot({k: v["converge"]["curves"] for k, v in table.items() if "converge" in v}, base + "_transfer.png", f"{env}: fine-tuning on unseen sub-spaces")
+        plot(
+            {k: v["converge"]["curves"] for k, v in table.items() if "converge" in v},
+            base + "_transfer.png",
+            f"{env}: fine-tuning on unseen sub-spaces",
+        )
     print(markdown(out, args.transfer))
     return out
 
 
 def markdown(out: dict, transfer: bool) -> str:
     cell = lambda d: f"{d['mean']:.1f} (± {d['std']:.1f})" if d else "—"
-    head = f"Final deterministic evaluation return, mean (± std) over {out['seeds']} seeds x {out['eval_episodes']} episodes, {out['total_steps']} env steps per run on `{out['env']}`.\n\n"
+    head = (
+        f"Final deterministic evaluation return, mean (± std) over {out['seeds']} seeds x "
+        f"{out['eval_episodes']} episodes, {out['total_steps']} env steps per run on "
+        f"`{out['env']}`.\n\n"
+    )
     cols = ["Fully: Converge"] + (["Unseen: Initial", "Unseen: Converge"] if transfer else [])
     lines = ["| algorithm | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
     for label, v in out["rows"].items():
-        cells = [cell(v.get("full"))] + ([cell(v.get("initial")), cell(v.get("converge"))] if transfer else [])
+        cells = [cell(v.get("full"))] + (
+            [cell(v.get("initial")), cell(v.get("converge"))] if transfer else []
+        )
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     errors = "".join(f"\n- {k}: {e}" for k, e in out["errors"].items())
     return head + "\n".join(lines) + ("\n\nFailed:" + errors if errors else "") + "\n"
@@ -268,7 +393,9 @@ def plot(curves: dict[str, list[dict]], path: str, title: str) -> None:
         steps = np.asarray(per_seed[0]["steps"][:n], float)
         r = np.asarray([c["returns"][:n] for c in per_seed], float)
         line = ax.plot(steps, r.mean(0), label=label)[0]
-        ax.fill_between(steps, r.mean(0) - r.std(0), r.mean(0) + r.std(0), color=line.get_color(), alpha=0.2)
+        ax.fill_between(
+            steps, r.mean(0) - r.std(0), r.mean(0) + r.std(0), color=line.get_color(), alpha=0.2
+        )
     ax.set_xlabel("environment steps")
     ax.set_ylabel("episode return (deterministic evaluation)")
     ax.set_title(title)
@@ -280,7 +407,9 @@ def plot(curves: dict[str, list[dict]], path: str, title: str) -> None:
 
 
 def main(args: CompareArgs) -> int:
-    if not jax.config.jax_compilation_cache_dir:  # the seeds of a row compile the same programs: compile them once
+    if (
+        not jax.config.jax_compilation_cache_dir
+    ):  # the seeds of a row compile the same programs: compile them once
         jax.config.update("jax_compilation_cache_dir", os.path.join(args.work_dir, "jax_cache"))
     outs = [compare_env(args, env) for env in args.envs]
     for o in outs:

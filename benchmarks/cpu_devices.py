@@ -7,5 +7,10 @@ already or another platform is requested.
 
 import os
 
-if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "") and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu":
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={os.cpu_count()}".strip()
+if (
+    "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
+    and os.environ.get("JAX_PLATFORMS", "cpu") == "cpu"
+):
+    os.environ["XLA_FLAGS"] = (
+        f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={os.cpu_count()}"
+    ).strip()

@@ -91,11 +91,16 @@ def to_markdown(rows: list[dict], meta: dict) -> str:
     ]
     for r in rows:
         lines.append(
-            f"| {r['batch']} | {r['compile_s']:.2f} | {r['season_s_best']:.3f} | {r['season_s_mean']:.3f} "
+            f"| {r['batch']} | {r['compile_s']:.2f} | {r['season_s_best']:.3f} "
+            f"| {r['season_s_mean']:.3f} "
             f"| {r['days_per_s_best']:,.0f} | {r['days_per_s_mean']:,.0f} |"
         )
     best = max(rows, key=lambda r: r["days_per_s_best"])
-    lines += ["", f"Best: {best['days_per_s_best']:,.0f} simulated days/s at batch {best['batch']}.", ""]
+    lines += [
+        "",
+        f"Best: {best['days_per_s_best']:,.0f} simulated days/s at batch {best['batch']}.",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -104,7 +109,11 @@ def main(argv=None):
     ap.add_argument("--batch-sizes", type=int, nargs="+", default=[1, 64, 1024, 4096])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--substeps-per-hour", type=int, default=1)
-    ap.add_argument("--out", default=RESULTS, help="folder for greenhouse_throughput.{json,md}; '' = do not write")
+    ap.add_argument(
+        "--out",
+        default=RESULTS,
+        help="folder for greenhouse_throughput.{json,md}; '' = do not write",
+    )
     args = ap.parse_args(argv)
 
     env = make_greenhouse(substeps_per_hour=args.substeps_per_hour)
@@ -118,11 +127,19 @@ def main(argv=None):
         "days": env.episode_length,
     }
     rows = []
-    print(f"{'batch':>6s} {'compile s':>10s} {'season s':>10s} {'days/s best':>14s} {'days/s mean':>14s}", flush=True)
+    print(
+        f"{'batch':>6s} {'compile s':>10s} {'season s':>10s} "
+        f"{'days/s best':>14s} {'days/s mean':>14s}",
+        flush=True,
+    )
     for b in args.batch_sizes:
         r = measure(env, b, args.repeats)
         rows.append(r)
-        print(f"{b:>6d} {r['compile_s']:>10.2f} {r['season_s_best']:>10.3f} {r['days_per_s_best']:>14,.0f} {r['days_per_s_mean']:>14,.0f}", flush=True)
+        print(
+            f"{b:>6d} {r['compile_s']:>10.2f} {r['season_s_best']:>10.3f} "
+            f"{r['days_per_s_best']:>14,.0f} {r['days_per_s_mean']:>14,.0f}",
+            flush=True,
+        )
     md = to_markdown(rows, meta)
     if args.out:
         os.makedirs(args.out, exist_ok=True)

@@ -20,15 +20,14 @@ import os
 import time
 
 import cpu_devices  # noqa: F401  (before jax: one XLA host device per core)
-
 import jax
 import numpy as np
 
-from score_jax import train_loop
-from score_jax.config import TrainConfig
-from score_jax.evaluation import evaluate
-from score_jax.robustness import make_sweep, settings_grid, shard_settings
-from score_jax.score import ScoreConfig
+from score_jax.agents.score.config import ScoreConfig
+from score_jax.evaluation.robustness import make_sweep, settings_grid, shard_settings
+from score_jax.run.build import build, restore_run
+from score_jax.run.config import TrainConfig
+from score_jax.run.episodes import evaluate
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -40,17 +39,32 @@ def timed(f, *args):
 
 
 def main():
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--env", default="greenhouse")
     p.add_argument("--seeds", type=int, default=10)
-    p.add_argument("--action-repeat", type=int, default=0, help="decisions held this many env steps; 0 = the env's suggestion (greenhouse 8)")
-    p.add_argument("--run-dir", default="", help="a trained run (default: an untrained SCORE policy; speed does not depend on training)")
+    p.add_argument(
+        "--action-repeat",
+        type=int,
+        default=0,
+        help="decisions held this many env steps; 0 = the env's suggestion (greenhouse 8)",
+    )
+    p.add_argument(
+        "--run-dir",
+        default="",
+        help=(
+            "a trained run (default: an untrained SCORE policy; speed does not depend on training)"
+        ),
+    )
     args = p.parse_args()
     if args.run_dir:
-        run = train_loop.restore_run(args.run_dir, log=lambda *a: None)
+        run = restore_run(args.run_dir, log=lambda *a: None)
     else:
-        cfg = TrainConfig(env=args.env, action_repeat=args.action_repeat, score=ScoreConfig(asrl_steps=10))
-        run = train_loop.build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None)
+        cfg = TrainConfig(
+            env=args.env, action_repeat=args.action_repeat, score=ScoreConfig(asrl_steps=10)
+        )
+        run = build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None)
         run.state = run.trainer.init(jax.random.PRNGKey(1))
     act = run.algo.policy(run.state.agent)
     n = len(run.agent_index)
@@ -73,43 +87,95 @@ def main():
     _, sharded_run2 = timed(sharded_compiled, sharded, key)
     # Equal on the greenhouse; on the Spider, 1000 chaotic contact steps amplify the float
     # rounding of a partitioned program, so agreement is reported rather than asserted.
-    sharded_agree = float(np.mean(np.isclose(np.asarray(sharded_ref), np.asarray(ref), rtol=1e-4, atol=1e-3)))
+    sharded_agree = float(
+        np.mean(np.isclose(np.asarray(sharded_ref), np.asarray(ref), rtol=1e-4, atol=1e-3))
+    )
 
-    single = jax.jit(lambda n_failed, mode, seed: evaluate(run.env, act, jax.random.fold_in(key, seed), 1, run.agent_index, n_failed, mode).returns)
+    single = jax.jit(
+        lambda n_failed, mode, seed: (
+            evaluate(
+                run.env, act, jax.random.fold_in(key, seed), 1, run.agent_index, n_failed, mode
+            ).returns
+        )
+    )
     t = time.time()
-    single_compiled = single.lower(settings.n_failed[0], settings.mode[0], settings.seed[0]).compile()
+    single_compiled = single.lower(
+        settings.n_failed[0], settings.mode[0], settings.seed[0]
+    ).compile()
     loop_compile = time.time() - t
     t = time.time()
-    loop_out = [single_compiled(settings.n_failed[i], settings.mode[i], settings.seed[i]) for i in range(S)]
+    loop_out = [
+        single_compiled(settings.n_failed[i], settings.mode[i], settings.seed[i]) for i in range(S)
+    ]
     jax.block_until_ready(loop_out)
     loop_run = time.time() - t
-    loop_agree = float(np.mean(np.isclose(np.concatenate([np.asarray(x) for x in loop_out]), np.asarray(ref).ravel(), rtol=1e-4, atol=1e-3)))
+    loop_agree = float(
+        np.mean(
+            np.isclose(
+                np.concatenate([np.asarray(x) for x in loop_out]),
+                np.asarray(ref).ravel(),
+                rtol=1e-4,
+                atol=1e-3,
+            )
+        )
+    )
 
     sweep_best = min(sweep_run, sweep_run2)
     sharded_best = min(sharded_run, sharded_run2)
     result = {
-        "env": args.env, "settings": S, "episode_length": run.env.episode_length, "sweep_compile_s": sweep_compile, "sweep_run_s": sweep_best,
-        "loop_compile_s": loop_compile, "loop_run_s": loop_run, "speedup_run": loop_run / sweep_best,
-        "speedup_incl_compile": (loop_compile + loop_run) / (sweep_compile + sweep_best), "devices": [str(d) for d in jax.devices()],
-        "sharded_devices": n_dev, "sharded_compile_s": sharded_compile, "sharded_run_s": sharded_best, "sharded_speedup_run": loop_run / sharded_best,
-        "sharded_speedup_incl_compile": (loop_compile + loop_run) / (sharded_compile + sharded_best), "load_average": os.getloadavg(),
-        "fraction_loop_equals_sweep": loop_agree, "fraction_sharded_equals_sweep": sharded_agree,
+        "env": args.env,
+        "settings": S,
+        "episode_length": run.env.episode_length,
+        "sweep_compile_s": sweep_compile,
+        "sweep_run_s": sweep_best,
+        "loop_compile_s": loop_compile,
+        "loop_run_s": loop_run,
+        "speedup_run": loop_run / sweep_best,
+        "speedup_incl_compile": (loop_compile + loop_run) / (sweep_compile + sweep_best),
+        "devices": [str(d) for d in jax.devices()],
+        "sharded_devices": n_dev,
+        "sharded_compile_s": sharded_compile,
+        "sharded_run_s": sharded_best,
+        "sharded_speedup_run": loop_run / sharded_best,
+        "sharded_speedup_incl_compile": (loop_compile + loop_run)
+        / (sharded_compile + sharded_best),
+        "load_average": os.getloadavg(),
+        "fraction_loop_equals_sweep": loop_agree,
+        "fraction_sharded_equals_sweep": sharded_agree,
     }
     result["action_repeat"] = int(getattr(run.env, "repeat", 1))
     suffix = f"_repeat{args.action_repeat}" if args.action_repeat else ""
     os.makedirs(RESULTS, exist_ok=True)
     with open(os.path.join(RESULTS, f"robustness_sweep_{args.env}{suffix}.json"), "w") as f:
         json.dump(result, f, indent=2)
-    table = "\n".join([
-        "| env | settings (episodes) | sweep devices | one-call sweep: compile / run (s) | Python loop: compile / run (s) | speed-up (run) | speed-up (incl. compile) |",
-        "|---|---|---|---|---|---|---|",
-        f"| {args.env} | {S} | 1 | {sweep_compile:.1f} / {sweep_best:.2f} | {loop_compile:.1f} / {loop_run:.2f} | {result['speedup_run']:.1f}x | {result['speedup_incl_compile']:.1f}x |",
-        f"| {args.env} | {S} | {n_dev} | {sharded_compile:.1f} / {sharded_best:.2f} | {loop_compile:.1f} / {loop_run:.2f} | {result['sharded_speedup_run']:.1f}x | {result['sharded_speedup_incl_compile']:.1f}x |",
-        "",
-        f"Action repeat {result['action_repeat']} ({run.env.episode_length} decisions per episode). "
-        f"Load average {tuple(round(x, 2) for x in result['load_average'])}; the loop runs on one device. "
-        f"Settings whose return equals the one-device sweep's (rtol 1e-4): loop {loop_agree:.0%}, sharded {sharded_agree:.0%}.",
-    ])
+    table = "\n".join(
+        [
+            (
+                "| env | settings (episodes) | sweep devices | one-call sweep: compile / run (s) "
+                "| Python loop: compile / run (s) | speed-up (run) | speed-up (incl. compile) |"
+            ),
+            "|---|---|---|---|---|---|---|",
+            (
+                f"| {args.env} | {S} | 1 | {sweep_compile:.1f} / {sweep_best:.2f} "
+                f"| {loop_compile:.1f} / {loop_run:.2f} | {result['speedup_run']:.1f}x "
+                f"| {result['speedup_incl_compile']:.1f}x |"
+            ),
+            (
+                f"| {args.env} | {S} | {n_dev} | {sharded_compile:.1f} / {sharded_best:.2f} "
+                f"| {loop_compile:.1f} / {loop_run:.2f} | {result['sharded_speedup_run']:.1f}x "
+                f"| {result['sharded_speedup_incl_compile']:.1f}x |"
+            ),
+            "",
+            (
+                f"Action repeat {result['action_repeat']} "
+                f"({run.env.episode_length} decisions per episode). "
+                f"Load average {tuple(round(x, 2) for x in result['load_average'])}; "
+                "the loop runs on one device. "
+                "Settings whose return equals the one-device sweep's (rtol 1e-4): "
+                f"loop {loop_agree:.0%}, sharded {sharded_agree:.0%}."
+            ),
+        ]
+    )
     with open(os.path.join(RESULTS, f"robustness_sweep_{args.env}{suffix}.md"), "w") as f:
         f.write(table + "\n")
     print(table)

@@ -5,42 +5,61 @@ Environments are imported lazily so that using the greenhouse never imports MuJo
 
 from __future__ import annotations
 
-import importlib
-from typing import Callable
+from collections.abc import Callable
 
-from envs.base import CompositeEnv, EnvState
+from envs.base import CompositeEnv, EnvHints, EnvState, missing_members
+from score_jax.core.registry import LazyRegistry
 
 # name -> "module:factory"; the factory takes keyword overrides and returns a CompositeEnv.
-_REGISTRY: dict[str, str | Callable[..., CompositeEnv]] = {
-    "greenhouse": "envs.greenhouse.env:make_greenhouse",
-    "spider": "envs.spider.env:make_spider",
-    "probe": "envs.probe:make_probe",
-}
+_REGISTRY: LazyRegistry[Callable[..., CompositeEnv]] = LazyRegistry(
+    "environment",
+    {
+        "greenhouse": "envs.greenhouse.env:make_greenhouse",
+        "spider": "envs.spider.env:make_spider",
+        "probe": "envs.probe:make_probe",
+    },
+)
 
 
 def register(name: str, factory: str | Callable[..., CompositeEnv]) -> None:
     """Add an environment: ``factory`` is a callable or a ``"module:function"`` string."""
-    _REGISTRY[name] = factory
+    _REGISTRY.register(name, factory)
 
 
 def registered_names() -> list[str]:
-    return sorted(_REGISTRY)
+    return _REGISTRY.names()
+
+
+def factory(name: str) -> Callable[..., CompositeEnv]:
+    """The factory registered under ``name`` (imported on first use)."""
+    return _REGISTRY.get(name)
 
 
 def make(name: str, **overrides) -> CompositeEnv:
     """Build the environment called ``name``; ``overrides`` go to its config.
 
     Raises:
-      ValueError: for an unknown name (the message lists the known ones) or an unknown
-        override (the message lists the accepted ones).
+      ValueError: for an unknown name (the message lists the known ones), an unknown
+        override (the message lists the accepted ones), or a factory whose result does not
+        satisfy the ``CompositeEnv`` protocol (the message names the missing members).
     """
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown environment {name!r}; known environments: {registered_names()}")
-    factory = _REGISTRY[name]
-    if isinstance(factory, str):
-        module, func = factory.split(":")
-        factory = getattr(importlib.import_module(module), func)
-    return factory(**overrides)
+    env = factory(name)(**overrides)
+    missing = missing_members(env)
+    if missing:
+        raise ValueError(
+            f"environment {name!r} does not satisfy the CompositeEnv protocol: it lacks {missing} "
+            "(subclass envs.base.CompositeEnv to inherit the defaults of hints and "
+            "reference_policies)"
+        )
+    return env
 
 
-__all__ = ["CompositeEnv", "EnvState", "make", "register", "registered_names"]
+__all__ = [
+    "CompositeEnv",
+    "EnvHints",
+    "EnvState",
+    "factory",
+    "make",
+    "register",
+    "registered_names",
+]

@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from envs.base import EnvState, build_config
-from score_jax.spaces import CompositeSpace, SubSpace
+from envs.base import CompositeEnv, EnvHints, EnvState, build_config
+from score_jax.core.spaces import CompositeSpace, SubSpace
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,9 +47,10 @@ class ProbeMetrics:
     squared_error: jax.Array
 
 
-class ProbeEnv:
+class ProbeEnv(CompositeEnv):
     name = "probe"
     observation_size = 4
+    hints = EnvHints(total_steps=4_000, eval_every=0)
 
     def __init__(self, config: ProbeConfig = ProbeConfig()):
         self.config = config
@@ -69,15 +70,28 @@ class ProbeEnv:
     def reset(self, key: jax.Array) -> EnvState:
         key, key_obs = jax.random.split(key)
         zero = jnp.zeros((), jnp.float32)
-        return EnvState(ProbeSim(key), self._obs(key_obs), zero, zero, zero, jnp.zeros((), jnp.int32), ProbeMetrics(zero))
+        return EnvState(
+            ProbeSim(key),
+            self._obs(key_obs),
+            zero,
+            zero,
+            zero,
+            jnp.zeros((), jnp.int32),
+            ProbeMetrics(zero),
+        )
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         a = self.space.from_physical(self.space.to_physical(action))  # clip + snap like a real env
-        err = jnp.sum(jnp.where(self.space.dim_mask, (a - self.best_action(state.obs)) ** 2, 0.0)) / self.space.total_dim
+        err = (
+            jnp.sum(jnp.where(self.space.dim_mask, (a - self.best_action(state.obs)) ** 2, 0.0))
+            / self.space.total_dim
+        )
         key, key_obs = jax.random.split(state.sim.key)
         t = state.t + 1
         done = (t >= self.episode_length).astype(jnp.float32)
-        return EnvState(ProbeSim(key), self._obs(key_obs), 1.0 - err, done, done, t, ProbeMetrics(err))
+        return EnvState(
+            ProbeSim(key), self._obs(key_obs), 1.0 - err, done, done, t, ProbeMetrics(err)
+        )
 
 
 def make_probe(**overrides) -> ProbeEnv:

@@ -5,17 +5,23 @@
 - ``ActionRepeat``: one decision holds for ``k`` steps of the wrapped environment (brax's
   ``action_repeat``, the frame skip of Atari agents); ``with_action_repeat`` applies it.
 
-``envs.brax_flat.BraxFlatEnv`` (its own module, so that importing this one never imports brax
-and MuJoCo) exposes a CompositeEnv to ``brax.training.agents``.
+Both satisfy the ``CompositeEnv`` protocol (wrappers subclass it); a wrapper's extras live in
+``EnvState.info``, as brax keeps them in ``state.info``. The flat-action view for brax's agents
+lives next to the brax adapters (``score_jax.agents.brax.flat_env``).
 """
 
 from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from envs.base import CompositeEnv, EnvState
+from envs.base import CompositeEnv, EnvHints, EnvState, ReferencePolicy
+
+FINAL_OBS = "final_obs"
 
 
 @struct.dataclass
@@ -24,14 +30,13 @@ class AutoResetSim:
     key: jax.Array
 
 
-class AutoReset:
+class AutoReset(CompositeEnv):
     """Reset an environment in ``step`` when it is done; ``reward``/``done`` report the last step.
 
     The returned state after a terminal step carries the *new* episode's observation in
-    ``obs``, and the terminal observation in ``metrics`` is not kept: the learner stores
-    ``next_obs`` before calling ``step`` again, exactly like brax's AutoResetWrapper.
-    ``final_obs`` holds the observation the last step produced (before any reset), which is
-    what a replay buffer must store as the next observation.
+    ``obs``, like brax's AutoResetWrapper. ``info["final_obs"]`` holds the observation the
+    step produced (before any reset), which is what a replay buffer must store as the next
+    observation.
     """
 
     def __init__(self, env: CompositeEnv):
@@ -39,14 +44,24 @@ class AutoReset:
         self.name, self.space = env.name, env.space
         self.observation_size, self.episode_length = env.observation_size, env.episode_length
 
+    @property
+    def hints(self) -> EnvHints:
+        return self.env.hints
+
+    def reference_policies(self) -> Mapping[str, ReferencePolicy]:
+        return self.env.reference_policies()
+
     def reset(self, key: jax.Array) -> EnvState:
         key, key_env = jax.random.split(key)
         state = self.env.reset(key_env)
-        return state.replace(sim=AutoResetSim(state.sim, key))
+        return state.replace(
+            sim=AutoResetSim(state.sim, key), info={**state.info, FINAL_OBS: state.obs}
+        )
 
-    def step(self, state: EnvState, action: jax.Array) -> tuple[EnvState, jax.Array]:
-        """Returns ``(state, final_obs)``: ``final_obs`` is the observation reached by this step."""
-        inner = self.env.step(state.replace(sim=state.sim.inner), action)
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """One step; a finished episode restarts in place (see the class docstring)."""
+        own = {k: v for k, v in state.info.items() if k != FINAL_OBS}
+        inner = self.env.step(state.replace(sim=state.sim.inner, info=own), action)
         key, key_reset = jax.random.split(state.sim.key)
         # A fresh random reset every step (selected where done) keeps start states diverse;
         # brax instead reuses each env's first state. It costs one reset per step: cheap for
@@ -54,12 +69,17 @@ class AutoReset:
         fresh = self.env.reset(key_reset)
         done = inner.done > 0
         merged = jax.tree.map(lambda f, s: jnp.where(done, f, s), fresh, inner)
-        merged = merged.replace(reward=inner.reward, done=inner.done, truncated=inner.truncated, metrics=inner.metrics)
-        return merged.replace(sim=AutoResetSim(merged.sim, key)), inner.obs
+        merged = merged.replace(
+            reward=inner.reward, done=inner.done, truncated=inner.truncated, metrics=inner.metrics
+        )
+        return merged.replace(
+            sim=AutoResetSim(merged.sim, key), info={**inner.info, FINAL_OBS: inner.obs}
+        )
 
 
-class ActionRepeat:
-    """Apply each action for ``repeat`` consecutive steps of ``env``; one decision = ``repeat`` steps.
+class ActionRepeat(CompositeEnv):
+    """Apply each action for ``repeat`` consecutive steps of ``env``; one decision = ``repeat``
+    steps.
 
     ``reward`` is the sum of the inner rewards up to the end of the episode, ``done`` /
     ``truncated`` / ``metrics`` are those of the last inner step taken; once the episode ends
@@ -69,12 +89,13 @@ class ActionRepeat:
     on one scale. ``obs`` is the observation after the last inner step; ``t`` counts inner
     steps (the wrapped environment reads it).
 
-    Why: on the greenhouse a day's sub-action barely moves a 160-day season (one day at 23 °C
-    instead of 19 °C changes the scaled return by ~0.3 %), so a critic of daily decisions has to
+    Why: on the greenhouse a day's sub-action barely moves a 160-day season (see the README's
+    design notes), so a critic of daily decisions has to
     resolve differences far below its own error; a decision held for a week has a k-fold
     larger effect and the season has k-fold fewer decisions to propagate values over.
-    Other attributes (``expert_action``, ``reward_scale`` ...) are the wrapped environment's,
-    except ``reward_scale``, divided by ``repeat`` (a decision's reward sums ``repeat`` rewards).
+    Other attributes (``mj_model``, ``weather`` ...) are the wrapped environment's; its
+    ``hints`` are too, except ``reward_scale``, divided by ``repeat`` (a decision's reward sums
+    ``repeat`` rewards), and ``action_repeat``, 1 (the repeat is applied).
     """
 
     def __init__(self, env: CompositeEnv, repeat: int):
@@ -84,7 +105,7 @@ class ActionRepeat:
         self.name, self.space, self.observation_size = env.name, env.space, env.observation_size
         self.episode_length = -(-env.episode_length // self.repeat)
 
-    def __getattr__(self, name):  # expert_action, mj_model, weather ...: the wrapped env's
+    def __getattr__(self, name):  # mj_model, weather ...: the wrapped env's
         if name == "env" or name.startswith("__"):  # not set yet (copy, pickle): no recursion
             raise AttributeError(name)
         return getattr(self.env, name)
@@ -94,8 +115,14 @@ class ActionRepeat:
         return self.env
 
     @property
-    def reward_scale(self) -> float:
-        return float(getattr(self.env, "reward_scale", 1.0)) / self.repeat
+    def hints(self) -> EnvHints:
+        inner = self.env.hints
+        return dataclasses.replace(
+            inner, reward_scale=inner.reward_scale / self.repeat, action_repeat=1
+        )
+
+    def reference_policies(self) -> Mapping[str, ReferencePolicy]:
+        return self.env.reference_policies()
 
     def reset(self, key: jax.Array) -> EnvState:
         return self.env.reset(key)

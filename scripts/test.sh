@@ -2,6 +2,7 @@
 # Set up a fresh machine and run the test suite (the README's test command).
 #   - Debian's libosmesa6 for off-screen rendering tests (installed when running as root);
 #   - a virtual environment in .venv with the pinned dependencies and the dev extras;
+#   - ruff (format and lint) and import-linter (the one-way layers of pyproject.toml);
 #   - pytest on both cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,5 +17,9 @@ fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[dev]"
+# Style and architecture first: seconds, and a failure names the file and line.
+.venv/bin/ruff format --check .
+.venv/bin/ruff check .
+.venv/bin/lint-imports
 export MUJOCO_GL="${MUJOCO_GL:-osmesa}" JAX_PLATFORMS="${JAX_PLATFORMS:-cpu}"
 exec .venv/bin/python -m pytest -n 2 --dist loadfile --durations=15 "$@"

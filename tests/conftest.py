@@ -8,11 +8,14 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 # Tests run tiny programs, where XLA's backend optimisation costs more compile time than it
-# saves at run time: the cold suite took 897 s with level 0 and 1217 s without on 2 cores (the
-# MJX-heavy Spider learner test 137 s vs 300 s). Subprocesses (the CLI tests) inherit it.
+# saves at run time (the README gives the measured suite times). Subprocesses inherit it.
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
-CACHE_DIR = os.environ.setdefault("SCORE_JAX_TEST_CACHE", os.path.join(tempfile.gettempdir(), "score-jax-test-jax-cache"))
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
+    ).strip()
+CACHE_DIR = os.environ.setdefault(
+    "SCORE_JAX_TEST_CACHE", os.path.join(tempfile.gettempdir(), "score-jax-test-jax-cache")
+)
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", CACHE_DIR)
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 

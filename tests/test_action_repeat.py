@@ -1,4 +1,5 @@
-"""ActionRepeat: a decision holds for k steps, returns are the wrapped env's, episodes end on time."""
+"""ActionRepeat: a decision holds for k steps, returns are the wrapped env's, episodes end on
+time."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +8,7 @@ import pytest
 
 import envs
 from envs.wrappers import ActionRepeat, unwrapped, with_action_repeat
-from score_jax.config import TrainConfig, resolved_action_repeat
+from score_jax.run.config import TrainConfig, resolve
 
 
 def test_repeat_sums_rewards_and_ends_with_the_wrapped_episode():
@@ -25,9 +26,20 @@ def test_repeat_sums_rewards_and_ends_with_the_wrapped_episode():
         state = jax.jit(wrapped.step)(state, action)
         wrapped_rewards.append(float(state.reward))
         dones.append(float(state.done))
-    np.testing.assert_allclose(wrapped_rewards, [sum(inner_rewards[0:3]), sum(inner_rewards[3:6]), sum(inner_rewards[6:9]), inner_rewards[9]], rtol=1e-5)
+    np.testing.assert_allclose(
+        wrapped_rewards,
+        [
+            sum(inner_rewards[0:3]),
+            sum(inner_rewards[3:6]),
+            sum(inner_rewards[6:9]),
+            inner_rewards[9],
+        ],
+        rtol=1e-5,
+    )
     assert dones == [0.0, 0.0, 0.0, 1.0]
-    assert int(state.t) == 10  # the last decision stopped at the episode's end (2 inner steps skipped)
+    assert (
+        int(state.t) == 10
+    )  # the last decision stopped at the episode's end (2 inner steps skipped)
     np.testing.assert_allclose(state.obs, inner.obs)
 
 
@@ -37,14 +49,14 @@ def test_repeat_one_is_the_env_itself_and_suggestions_resolve():
     with pytest.raises(ValueError, match=">= 1"):
         ActionRepeat(env, 0)
     greenhouse = envs.make("greenhouse")
-    assert resolved_action_repeat(TrainConfig(), greenhouse) == greenhouse.action_repeat == 8
-    assert resolved_action_repeat(TrainConfig(action_repeat=2), greenhouse) == 2
-    assert resolved_action_repeat(TrainConfig(env="probe"), env) == 1
+    assert resolve(TrainConfig(), greenhouse).action_repeat == greenhouse.hints.action_repeat == 8
+    assert resolve(TrainConfig(action_repeat=2), greenhouse).action_repeat == 2
+    assert resolve(TrainConfig(env="probe"), env).action_repeat == 1
     wrapped = ActionRepeat(greenhouse, 8)
-    assert wrapped.reward_scale == pytest.approx(greenhouse.reward_scale / 8)
+    assert wrapped.hints.reward_scale == pytest.approx(greenhouse.hints.reward_scale / 8)
     assert wrapped.expert_action.__self__ is greenhouse  # other attributes are the wrapped env's
     with pytest.raises(ValueError, match="action_repeat"):
-        resolved_action_repeat(TrainConfig(action_repeat=-1), greenhouse)
+        resolve(TrainConfig(action_repeat=-1), greenhouse)
 
 
 def test_repeated_greenhouse_season_returns_the_daily_return():
@@ -58,6 +70,7 @@ def test_repeated_greenhouse_season_returns_the_daily_return():
             s, r = c
             s = e.step(s, action)
             return (s, r + s.reward), s.done
+
         (s, r), done = jax.lax.scan(step, (e.reset(jax.random.PRNGKey(0)), 0.0), None, n)
         return r, done
 

@@ -22,22 +22,28 @@ import pytest
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.distribution import NormalTanhDistribution
 
-from envs.brax_flat import BraxFlatEnv
 from envs.probe import PROBE_SPACE, make_probe
-from score_jax import train_loop
-from score_jax.baselines import brax_agents
-from score_jax.baselines.composite_dist import CompositeDistribution
-from score_jax.baselines.hppo import hppo_head_mask, make_hppo_networks
-from score_jax.baselines.single_config import BraxPPOConfig, BraxSACConfig, SingleAgentConfig
-from score_jax.checkpoint import CheckpointError
-from score_jax.config import TrainConfig
-from score_jax.report import final_evaluation
-from score_jax.robustness import run_sweep
+from score_jax.agents.brax import agents as brax_agents
+from score_jax.agents.brax.composite_dist import CompositeDistribution
+from score_jax.agents.brax.config import BraxPPOConfig, BraxSACConfig, SingleAgentConfig
+from score_jax.agents.brax.flat_env import BraxFlatEnv
+from score_jax.agents.brax.hppo import hppo_head_mask, make_hppo_networks
+from score_jax.evaluation.report import final_evaluation
+from score_jax.evaluation.robustness import run_sweep
+from score_jax.run.build import restore_run
+from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.config import TrainConfig
+from score_jax.run.driver import train
 
 THRESHOLD = 9.0  # return per 10-step episode: 0.9 per step
 STEPS = 20_480  # 16 PPO iterations of 1280 env steps
 TINY_SINGLE = SingleAgentConfig(
-    hidden=(32, 32), head_hidden=16, num_envs=16, learning_rate=3e-3, discounting=0.9, epochs=2,
+    hidden=(32, 32),
+    head_hidden=16,
+    num_envs=16,
+    learning_rate=3e-3,
+    discounting=0.9,
+    epochs=2,
     ppo=BraxPPOConfig(unroll_length=10, batch_size=32, num_minibatches=4, updates_per_batch=4),
     sac=BraxSACConfig(batch_size=64, min_replay_size=320, grad_updates_per_step=4),
 )
@@ -45,17 +51,26 @@ silent = lambda *a, **k: None
 
 
 def tiny(run_dir, algo: str, **overrides) -> TrainConfig:
-    # SAC: brax's temperature starts at 1, so scale the probe's ~1 per-step reward up to learn in 6k steps.
+    # SAC: brax's temperature starts at 1, so scale the probe's ~1 per-step reward up to learn in
+    # 6k steps.
     single = dataclasses.replace(TINY_SINGLE, reward_scaling=10.0) if algo == "sac" else TINY_SINGLE
-    base = TrainConfig(env="probe", algo=algo, total_steps=6000 if algo == "sac" else STEPS, run_dir=str(run_dir), quiet=True,
-                       eval_episodes=16, robustness_seeds=0, single=single)
+    base = TrainConfig(
+        env="probe",
+        algo=algo,
+        total_steps=6000 if algo == "sac" else STEPS,
+        run_dir=str(run_dir),
+        quiet=True,
+        eval_episodes=16,
+        robustness_seeds=0,
+        single=single,
+    )
     return dataclasses.replace(base, **overrides)
 
 
 @pytest.fixture(scope="module")
 def full_runs(tmp_path_factory):
     base = tmp_path_factory.mktemp("single")
-    return {algo: train_loop.train(tiny(base / algo, algo), log=silent) for algo in ("sac", "ppo", "hppo")}
+    return {algo: train(tiny(base / algo, algo), log=silent) for algo in ("sac", "ppo", "hppo")}
 
 
 @pytest.mark.parametrize("algo", ["sac", "ppo", "hppo"])
@@ -64,23 +79,27 @@ def test_baseline_learns_the_probe_and_its_checkpoint_is_evaluated_and_swept(ful
     rows = list(csv.DictReader(open(os.path.join(run.run_dir, "metrics.csv"))))
     assert len(rows) >= 2 and int(rows[-1]["env_steps"]) >= run.config.total_steps
     assert all(np.isfinite(float(r["actor_loss"])) for r in rows if r["actor_loss"] != "nan")
-    restored = train_loop.restore_run(run.run_dir, log=silent)
+    restored = restore_run(run.run_dir, log=silent)
     jax.tree.map(np.testing.assert_array_equal, restored.state.agent, run.state.agent)
     ev = final_evaluation(restored, 16, log=silent)
     assert ev[algo]["mean"] >= THRESHOLD > max(ev["default"]["mean"], ev["random"]["mean"])
     table = run_sweep(restored, n_seeds=2, log=silent)
     assert table.mean.shape == (3, 3) and np.isfinite(table.mean).all()
     assert table.mean[2, 1] < table.mean[0, 0] - 0.5  # two sub-spaces failing at random hurt
-    assert os.path.exists(os.path.join(run.run_dir, "robustness.json")) and os.path.exists(os.path.join(run.run_dir, "evaluation.json"))
+    assert os.path.exists(os.path.join(run.run_dir, "robustness.json")) and os.path.exists(
+        os.path.join(run.run_dir, "evaluation.json")
+    )
 
 
 def test_resume_of_a_brax_run_is_refused_with_a_reason(full_runs):
     with pytest.raises(CheckpointError, match="cannot be continued exactly"):
-        train_loop.train(TrainConfig(resume=full_runs["ppo"].run_dir, quiet=True), log=silent)
+        train(TrainConfig(resume=full_runs["ppo"].run_dir, quiet=True), log=silent)
 
 
 def test_hppo_log_prob_counts_real_dims_only_and_discrete_heads_are_categorical():
-    dist = CompositeDistribution(PROBE_SPACE)  # a: 2 continuous, b: 3 continuous, c: 1 discrete (5 choices)
+    dist = CompositeDistribution(
+        PROBE_SPACE
+    )  # a: 2 continuous, b: 3 continuous, c: 1 discrete (5 choices)
     assert dist.head_sizes == (4, 6, 5) and dist.param_size == 15
     params = jax.random.normal(jax.random.PRNGKey(0), (7, 15))
 
@@ -88,10 +107,18 @@ def test_hppo_log_prob_counts_real_dims_only_and_discrete_heads_are_categorical(
     def compute(params):
         raw = dist.sample_no_postprocessing(params, jax.random.PRNGKey(1))
         k = jnp.round(raw[:, 5]).astype(jnp.int32)
-        # reference: brax's tanh-normal on exactly the 5 continuous dims + the categorical's log-softmax
-        gauss = jnp.concatenate([params[:, jnp.array([0, 1, 4, 5, 6])], params[:, jnp.array([2, 3, 7, 8, 9])]], axis=-1)
-        ref = NormalTanhDistribution(5).log_prob(gauss, raw[:, :5]) + jax.nn.log_softmax(params[:, 10:])[jnp.arange(7), k]
-        draws = jax.vmap(lambda key: dist.sample_no_postprocessing(params[0], key)[5])(jax.random.split(jax.random.PRNGKey(2), 4000))
+        # reference: brax's tanh-normal on exactly the 5 continuous dims + the categorical's
+        # log-softmax
+        gauss = jnp.concatenate(
+            [params[:, jnp.array([0, 1, 4, 5, 6])], params[:, jnp.array([2, 3, 7, 8, 9])]], axis=-1
+        )
+        ref = (
+            NormalTanhDistribution(5).log_prob(gauss, raw[:, :5])
+            + jax.nn.log_softmax(params[:, 10:])[jnp.arange(7), k]
+        )
+        draws = jax.vmap(lambda key: dist.sample_no_postprocessing(params[0], key)[5])(
+            jax.random.split(jax.random.PRNGKey(2), 4000)
+        )
         return raw, dist.log_prob(params, raw), ref, dist.postprocess(raw), dist.mode(params), draws
 
     raw, log_prob, ref, action, mode, draws = compute(params)
@@ -101,7 +128,9 @@ def test_hppo_log_prob_counts_real_dims_only_and_discrete_heads_are_categorical(
     np.testing.assert_allclose(action[:, :5], np.tanh(raw[:, :5]), rtol=1e-5)
     np.testing.assert_allclose(action[:, 5], -1.0 + 2.0 * k / 4)
     np.testing.assert_allclose(mode[:, 5], -1.0 + 2.0 * np.argmax(params[:, 10:], -1) / 4)
-    freq = np.bincount(np.asarray(draws, int), minlength=5) / 4000  # the discrete head samples its softmax
+    freq = (
+        np.bincount(np.asarray(draws, int), minlength=5) / 4000
+    )  # the discrete head samples its softmax
     np.testing.assert_allclose(freq, jax.nn.softmax(params[0, 10:]), atol=0.03)
     # one sub-actor head per sub-space over a shared trunk
     nets = make_hppo_networks(PROBE_SPACE, (32,), 16)(4, 6)
@@ -115,7 +144,9 @@ def test_unseen_heads_of_the_flat_mlp_are_their_output_columns():
     mask = brax_agents.mlp_head_mask(PROBE_SPACE, np.array([False, True, False]), params)
     expected = np.zeros(12, bool)
     expected[[2, 3, 4, 8, 9, 10]] = True  # b's 3 means and 3 scales
-    np.testing.assert_array_equal(np.broadcast_to(mask["params"]["hidden_1"]["kernel"], (8, 12))[0], expected)
+    np.testing.assert_array_equal(
+        np.broadcast_to(mask["params"]["hidden_1"]["kernel"], (8, 12))[0], expected
+    )
     np.testing.assert_array_equal(mask["params"]["hidden_1"]["bias"], expected)
     assert not np.any(mask["params"]["hidden_0"]["kernel"])
 
@@ -129,7 +160,9 @@ def test_flat_env_gives_uncontrolled_subspaces_their_defaults():
     def errors(key):
         state = flat.reset(key)
         got = flat.step(state, action).pipeline_state.metrics.squared_error
-        return got, env.step(state.pipeline_state, PROBE_SPACE.unflatten(action.at[5].set(0.0))).metrics.squared_error  # c at its default
+        return got, env.step(
+            state.pipeline_state, PROBE_SPACE.unflatten(action.at[5].set(0.0))
+        ).metrics.squared_error  # c at its default
 
     got, expected = errors(jax.random.PRNGKey(0))
     np.testing.assert_allclose(got, expected)
@@ -140,7 +173,10 @@ def _head(agent, i):
 
 
 def _changed(a, b) -> bool:
-    return any(not np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+    return any(
+        not np.array_equal(x, y)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
 
 
 def test_variants_mask_trains_unseen_heads_and_penalty_pulls_them_to_the_default():
@@ -158,18 +194,34 @@ def test_variants_mask_trains_unseen_heads_and_penalty_pulls_them_to_the_default
     params0 = fresh.policy_network.init(jax.random.PRNGKey(0))
     obs = jax.random.uniform(jax.random.PRNGKey(1), (256, 4), minval=-1, maxval=1)
     keys = jax.random.split(jax.random.PRNGKey(2), 3)
-    noise = (jax.random.normal(keys[0], (100, 256, 5)), jax.random.gumbel(keys[1], (100, 256, 1, 5)), jax.random.normal(keys[2], (100, 256)))
+    noise = (
+        jax.random.normal(keys[0], (100, 256, 5)),
+        jax.random.gumbel(keys[1], (100, 256, 1, 5)),
+        jax.random.normal(keys[2], (100, 256)),
+    )
     target = PROBE_SPACE.flatten(PROBE_SPACE.default_action())
-    deviation = lambda p: float(jnp.mean(dist.deviation(fresh.policy_network.apply(None, p, obs), target)[:, 5]))
+    deviation = lambda p: float(
+        jnp.mean(dist.deviation(fresh.policy_network.apply(None, p, obs), target)[:, 5])
+    )
     opt = optax.adam(3e-3)
     out = {}
     for variant in ("mask", "penalty"):
-        apply = brax_agents.variant_factory(factory, PROBE_SPACE, np.array([True, True, False]), variant, 1.0, hppo_head_mask)(4, 6).policy_network.apply
+        apply = brax_agents.variant_factory(
+            factory, PROBE_SPACE, np.array([True, True, False]), variant, 1.0, hppo_head_mask
+        )(4, 6).policy_network.apply
 
         def loss(p, eps, gumbel, advantage, apply=apply):
             logits = apply(None, p, obs)
-            d = dist.create_dist(jax.lax.stop_gradient(logits))  # raw sample: a, b (5 pre-tanh values), c (choice index)
-            raw = jnp.concatenate([d.gauss_loc + d.gauss_scale * eps, jnp.argmax(d.logits + gumbel, -1).astype(jnp.float32)], -1)
+            d = dist.create_dist(
+                jax.lax.stop_gradient(logits)
+            )  # raw sample: a, b (5 pre-tanh values), c (choice index)
+            raw = jnp.concatenate(
+                [
+                    d.gauss_loc + d.gauss_scale * eps,
+                    jnp.argmax(d.logits + gumbel, -1).astype(jnp.float32),
+                ],
+                -1,
+            )
             return -jnp.mean(dist.log_prob(logits, raw) * advantage)
 
         def step(carry, noise, loss=loss):
@@ -177,9 +229,13 @@ def test_variants_mask_trains_unseen_heads_and_penalty_pulls_them_to_the_default
             updates, opt_state = opt.update(jax.grad(loss)(params, *noise), opt_state)
             return (optax.apply_updates(params, updates), opt_state), None
 
-        out[variant] = jax.jit(lambda p, noise, step=step: jax.lax.scan(step, (p, opt.init(p)), noise)[0][0])(params0, noise)
+        out[variant] = jax.jit(
+            lambda p, noise, step=step: jax.lax.scan(step, (p, opt.init(p)), noise)[0][0]
+        )(params0, noise)
     head = lambda p, i: p["params"][f"head_{i}"]
-    assert _changed(head(out["mask"], 2), head(params0, 2)) and _changed(head(out["penalty"], 0), head(params0, 0))
+    assert _changed(head(out["mask"], 2), head(params0, 2)) and _changed(
+        head(out["penalty"], 0), head(params0, 0)
+    )
     assert deviation(out["penalty"]) < 0.5 * min(deviation(out["mask"]), deviation(params0))
 
 
@@ -189,24 +245,49 @@ def test_compare_runs_plain_subset_and_transfer_and_writes_tables_and_curves(tmp
     on the full space (every head moves, the return reaches the threshold)."""
     from benchmarks.compare import CompareArgs, main
 
-    args = CompareArgs(envs=("probe",), algos=("hppo",), ablations="none", seeds=1, total_steps=STEPS, transfer=True, variants=("plain",),
-                       eval_points=2, eval_episodes=16, out=str(tmp_path / "out"), work_dir=str(tmp_path / "work"),
-                       base=TrainConfig(quiet=True, robustness_seeds=0, single=TINY_SINGLE))
+    args = CompareArgs(
+        envs=("probe",),
+        algos=("hppo",),
+        ablations="none",
+        seeds=1,
+        total_steps=STEPS,
+        transfer=True,
+        variants=("plain",),
+        eval_points=2,
+        eval_episodes=16,
+        out=str(tmp_path / "out"),
+        work_dir=str(tmp_path / "work"),
+        base=TrainConfig(quiet=True, robustness_seeds=0, single=TINY_SINGLE),
+    )
     assert main(args) == 0
     out = json.load(open(tmp_path / "out" / "compare_probe.json"))
     row = out["rows"]["H-PPO"]
     assert len(row["full"]["per_seed"]) == 1 and row["full"]["mean"] >= THRESHOLD
-    assert row["full"]["curves"][0]["steps"] == [0, STEPS // 2, STEPS]  # the starting policy, then every --eval-every steps
+    assert row["full"]["curves"][0]["steps"] == [
+        0,
+        STEPS // 2,
+        STEPS,
+    ]  # the starting policy, then every --eval-every steps
     assert np.isfinite(row["initial"]["mean"]) and row["converge"]["mean"] >= THRESHOLD
     assert "| H-PPO |" in open(tmp_path / "out" / "compare_probe.md").read()
     for png in ("compare_probe.png", "compare_probe_transfer.png"):
         assert (tmp_path / "out" / png).stat().st_size > 10_000
 
-    subset = train_loop.restore_run(str(tmp_path / "work" / "probe" / "h-ppo-plain-subset" / "s0"), log=silent)
-    initial = subset.trainer.init(jax.random.split(jax.random.PRNGKey(0))[1]).agent  # what brax started from (seed 0)
-    jax.tree.map(np.testing.assert_array_equal, _head(subset.state.agent, 2), _head(initial, 2))  # plain: frozen, bitwise
-    assert _changed(_head(subset.state.agent, 0), _head(initial, 0)) and _changed(_head(subset.state.agent, 1), _head(initial, 1))
-    grown = train_loop.restore_run(str(tmp_path / "work" / "probe" / "h-ppo-plain-transfer" / "s0"), log=silent)
-    assert list(grown.agent_index) == [0, 1, 2] and grown.config.transfer_new == "c"
-    assert all(_changed(_head(grown.state.agent, i), _head(subset.state.agent, i)) for i in range(3))  # transfer fine-tunes every head
+    subset = restore_run(str(tmp_path / "work" / "probe" / "h-ppo-plain-subset" / "s0"), log=silent)
+    initial = subset.trainer.init(
+        jax.random.split(jax.random.PRNGKey(0))[1]
+    ).agent  # what brax started from (seed 0)
+    jax.tree.map(
+        np.testing.assert_array_equal, _head(subset.state.agent, 2), _head(initial, 2)
+    )  # plain: frozen, bitwise
+    assert _changed(_head(subset.state.agent, 0), _head(initial, 0)) and _changed(
+        _head(subset.state.agent, 1), _head(initial, 1)
+    )
+    grown = restore_run(
+        str(tmp_path / "work" / "probe" / "h-ppo-plain-transfer" / "s0"), log=silent
+    )
+    assert list(grown.agent_index) == [0, 1, 2] and grown.transfer.new == ("c",)
+    assert all(
+        _changed(_head(grown.state.agent, i), _head(subset.state.agent, i)) for i in range(3)
+    )  # transfer fine-tunes every head
     assert main(args) == 0  # a second call reuses every run's result.json

@@ -7,9 +7,10 @@ import jax
 import numpy as np
 import pytest
 
-from score_jax import train_loop
-from score_jax.best_policy import BestPolicy, has_best, restore_best
-from score_jax.report import final_evaluation
+from score_jax.evaluation.report import final_evaluation
+from score_jax.run.best_policy import BestPolicy, has_best, restore_best
+from score_jax.run.build import restore_run
+from score_jax.run.driver import train
 from tests.tiny import tiny_config
 
 SILENT = lambda *a: None  # noqa: E731
@@ -18,13 +19,15 @@ SILENT = lambda *a: None  # noqa: E731
 @pytest.fixture(scope="module")
 def run_with_evals(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("best") / "run"
-    return train_loop.train(tiny_config(run_dir, eval_every=200, eval_episodes=4), log=SILENT)
+    return train(tiny_config(run_dir, eval_every=200, eval_episodes=4), log=SILENT)
 
 
 def _evaluations(run):
     with open(os.path.join(run.run_dir, "metrics.csv")) as f:
         rows = [r for r in csv.DictReader(f) if r["eval_return"] != "nan"]
-    return np.array([int(r["env_steps"]) for r in rows]), np.array([float(r["eval_return"]) for r in rows])
+    return np.array([int(r["env_steps"]) for r in rows]), np.array(
+        [float(r["eval_return"]) for r in rows]
+    )
 
 
 def test_best_is_the_argmax_of_the_periodic_evaluations(run_with_evals):
@@ -37,15 +40,23 @@ def test_best_is_the_argmax_of_the_periodic_evaluations(run_with_evals):
 
 
 def test_restored_best_policy_scores_its_recorded_return(run_with_evals):
-    run = train_loop.restore_run(run_with_evals.run_dir, log=SILENT, policy="best")
+    run = restore_run(run_with_evals.run_dir, log=SILENT, policy="best")
     agent, meta = restore_best(run_with_evals.run_dir, run_with_evals.state.agent)
-    jax.tree.map(np.testing.assert_array_equal, jax.device_get(run.state.agent.actor), jax.device_get(agent.actor))
-    again = float(np.mean(run.algo.evaluate(run, run.state, n_episodes=4).returns))
+    jax.tree.map(
+        np.testing.assert_array_equal,
+        jax.device_get(run.state.agent.actor),
+        jax.device_get(agent.actor),
+    )
+    again = float(np.mean(run.evaluate(run.state.agent, n_episodes=4).returns))
     assert again == pytest.approx(meta["eval_return"], rel=1e-5)
-    last = train_loop.restore_run(run_with_evals.run_dir, log=SILENT, policy="last")
-    jax.tree.map(np.testing.assert_array_equal, jax.device_get(last.state.agent.actor), jax.device_get(run_with_evals.state.agent.actor))
+    last = restore_run(run_with_evals.run_dir, log=SILENT, policy="last")
+    jax.tree.map(
+        np.testing.assert_array_equal,
+        jax.device_get(last.state.agent.actor),
+        jax.device_get(run_with_evals.state.agent.actor),
+    )
     with pytest.raises(ValueError, match="'last' or 'best'"):
-        train_loop.restore_run(run_with_evals.run_dir, log=SILENT, policy="first")
+        restore_run(run_with_evals.run_dir, log=SILENT, policy="first")
 
 
 def test_report_shows_last_and_best(run_with_evals):

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 
 import envs
-from envs.brax_flat import BraxFlatEnv
+from score_jax.agents.brax.flat_env import BraxFlatEnv
 
 
 def test_brax_sac_trains_on_the_greenhouse_through_the_flat_wrapper():
@@ -19,8 +19,17 @@ def test_brax_sac_trains_on_the_greenhouse_through_the_flat_wrapper():
     assert env.action_size == 52
     progress = []
     make_policy, params, metrics = sac.train(
-        environment=env, num_timesteps=480, episode_length=20, num_envs=8, batch_size=32, num_evals=2,
-        num_eval_envs=2, min_replay_size=160, grad_updates_per_step=1, seed=0, progress_fn=lambda s, m: progress.append(s),
+        environment=env,
+        num_timesteps=480,
+        episode_length=20,
+        num_envs=8,
+        batch_size=32,
+        num_evals=2,
+        num_eval_envs=2,
+        min_replay_size=160,
+        grad_updates_per_step=1,
+        seed=0,
+        progress_fn=lambda s, m: progress.append(s),
     )
     assert progress and np.isfinite(metrics["eval/episode_reward"])
     policy = make_policy(params, deterministic=True)

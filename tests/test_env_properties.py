@@ -43,7 +43,15 @@ from envs.spider.rollout import make_rollout, reset_batch
 
 # --- hostile actions (shared by both environments) ---------------------------------------
 ACTION_KINDS = (
-    "default", "uniform", "all_low", "all_high", "alternating", "huge", "nan", "inf", "chaos",
+    "default",
+    "uniform",
+    "all_low",
+    "all_high",
+    "alternating",
+    "huge",
+    "nan",
+    "inf",
+    "chaos",
 )
 
 

@@ -5,7 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from score_jax.failures import FailureMode, apply_failures, check_active, dropnode_mask, failure_mask
+from score_jax.core.failures import (
+    FailureMode,
+    apply_failures,
+    check_active,
+    dropnode_mask,
+    failure_mask,
+)
 from tests.test_spaces import SPACE
 
 ACTION = jnp.array([[0.1, 0.2, 0.3], [0.5, -0.5, 0.0], [0.9, 0.0, 0.0]])
@@ -26,13 +32,19 @@ def test_last_mode():
 
 def test_random_mode_is_uniform_in_range_and_only_touches_failed():
     keys = jax.random.split(jax.random.PRNGKey(0), 2000)
-    out = jax.vmap(lambda k: apply_failures(SPACE, ACTION, ACTIVE, FailureMode.RANDOM, k, LAST))(keys)
+    out = jax.vmap(lambda k: apply_failures(SPACE, ACTION, ACTIVE, FailureMode.RANDOM, k, LAST))(
+        keys
+    )
     np.testing.assert_allclose(out[:, 0], jnp.broadcast_to(ACTION[0], (2000, 3)))
     failed = out[:, 2, 0]
-    assert float(failed.min()) < -0.9 and float(failed.max()) > 0.9 and abs(float(failed.mean())) < 0.1
+    assert (
+        float(failed.min()) < -0.9 and float(failed.max()) > 0.9 and abs(float(failed.mean())) < 0.1
+    )
     hours = SPACE.to_physical(out)[:, 1, :2]
     np.testing.assert_allclose(hours, jnp.round(hours), atol=1e-4)  # discrete stays on the grid
-    assert bool(jnp.all(out[:, 1:, 2] == 0)) and bool(jnp.all(out[:, 2, 1:] == 0))  # padding stays zero
+    assert bool(jnp.all(out[:, 1:, 2] == 0)) and bool(
+        jnp.all(out[:, 2, 1:] == 0)
+    )  # padding stays zero
 
 
 def test_all_active_is_identity_for_every_mode():
@@ -58,7 +70,7 @@ def test_mask_and_mode_changes_do_not_retrace():
 def test_failure_mask_counts():
     keys = jax.random.split(jax.random.PRNGKey(3), 500)
     for n_failed in range(4):
-        masks = jax.vmap(lambda k: failure_mask(k, 3, n_failed))(keys)
+        masks = jax.vmap(lambda k, n_failed=n_failed: failure_mask(k, 3, n_failed))(keys)
         expected = min(n_failed, 2)  # at least one sub-space always stays active
         np.testing.assert_array_equal(jnp.sum(~masks, axis=1), expected)
     # failures are spread over all sub-spaces

@@ -64,10 +64,14 @@ def test_continuous_hours_switch():
 def test_schedule_on_fraction():
     on = np.asarray(on_fraction(jnp.float32(6.0), jnp.float32(18.0), 1))[:, 0]
     np.testing.assert_array_equal(on, (np.arange(24) >= 6) & (np.arange(24) < 18))
-    night = np.asarray(on_fraction(jnp.float32(18.0), jnp.float32(6.0), 1))[:, 0]  # end < start: wraps midnight
+    night = np.asarray(on_fraction(jnp.float32(18.0), jnp.float32(6.0), 1))[
+        :, 0
+    ]  # end < start: wraps midnight
     np.testing.assert_array_equal(night, [1] * 6 + [0] * 12 + [1] * 6)
     assert np.asarray(on_fraction(jnp.float32(9.0), jnp.float32(9.0), 1)).sum() == 0
-    frac = np.asarray(on_fraction(jnp.float32(6.5), jnp.float32(8.25), 2)).reshape(-1)  # half-hour sub-steps
+    frac = np.asarray(on_fraction(jnp.float32(6.5), jnp.float32(8.25), 2)).reshape(
+        -1
+    )  # half-hour sub-steps
     np.testing.assert_allclose(frac[12:18], [0.0, 1.0, 1.0, 1.0, 0.5, 0.0])
 
 
@@ -101,7 +105,9 @@ def test_jit_vmap_step_1024(env):
         actions = env.space.sample(jax.random.PRNGKey(10 + k), (n,))
         states = step_b(states, actions)
     assert states.obs.shape == (n, 225) and states.reward.shape == (n,)
-    assert np.all(np.isfinite(np.asarray(states.obs))) and np.all(np.abs(np.asarray(states.obs)) <= 1.0)
+    assert np.all(np.isfinite(np.asarray(states.obs))) and np.all(
+        np.abs(np.asarray(states.obs)) <= 1.0
+    )
     assert np.all(np.asarray(states.t) == 2)
     # different actions give different indoor climates
     assert np.std(np.asarray(states.metrics.temp_in)) > 0.1
@@ -142,7 +148,11 @@ def test_gross_photosynthesis_monotone_in_co2_and_par():
 
 
 def _profit(cfg, m):
-    cost = cfg.gas_price * m.heating_mj + cfg.co2_price * m.co2_kg + cfg.electricity_price * m.electricity_kwh
+    cost = (
+        cfg.gas_price * m.heating_mj
+        + cfg.co2_price * m.co2_kg
+        + cfg.electricity_price * m.electricity_kwh
+    )
     return cfg.tomato_price * m.daily_yield - cost
 
 
@@ -159,7 +169,9 @@ def test_reward_modes(env, step, state0):
     for mode, want in (("increment", m.daily_yield), ("profit", _profit(env.config, m))):
         s1 = jax.jit(make_greenhouse(reward=mode).step)(state, action)
         assert float(s1.reward) == pytest.approx(float(want), rel=1e-5, abs=1e-7)
-        jax.tree.map(np.testing.assert_array_equal, s1.sim, ref.sim)  # reward never changes the simulation
+        jax.tree.map(
+            np.testing.assert_array_equal, s1.sim, ref.sim
+        )  # reward never changes the simulation
 
 
 def test_start_day_jitter_and_static_use():
@@ -167,7 +179,11 @@ def test_start_day_jitter_and_static_use():
     reset = jax.jit(jax.vmap(e.reset))
     starts = np.asarray(reset(jax.random.split(jax.random.PRNGKey(0), 64)).sim.start_doy)
     days_from_start = (starts - 354 + 180) % 365 - 180  # signed distance from day 355
-    assert days_from_start.min() >= -20 and days_from_start.max() <= 20 and len(set(starts.tolist())) > 10
+    assert (
+        days_from_start.min() >= -20
+        and days_from_start.max() <= 20
+        and len(set(starts.tolist())) > 10
+    )
     # the environment object can be a static jit argument (identity hash), like any env object
     f = jax.jit(lambda env, k: env.reset(k).obs, static_argnums=0)
     assert f(e, jax.random.PRNGKey(1)).shape == (225,)
@@ -182,5 +198,9 @@ def test_finer_substeps_converge(env, step, state0):
     a, b = step(state0, action), jax.jit(fine.step)(state0, action)
     assert abs(float(a.metrics.temp_in - b.metrics.temp_in)) < 0.3
     assert float(a.metrics.heating_mj) == pytest.approx(float(b.metrics.heating_mj), rel=0.1)
-    assert float(a.metrics.gross_photosynthesis) == pytest.approx(float(b.metrics.gross_photosynthesis), rel=0.05)
-    assert float(a.metrics.transpiration_l) == pytest.approx(float(b.metrics.transpiration_l), rel=0.05)
+    assert float(a.metrics.gross_photosynthesis) == pytest.approx(
+        float(b.metrics.gross_photosynthesis), rel=0.05
+    )
+    assert float(a.metrics.transpiration_l) == pytest.approx(
+        float(b.metrics.transpiration_l), rel=0.05
+    )

@@ -123,14 +123,17 @@ def test_relaxed_timer_equals_hard_timer_in_the_sharp_limit():
     start, end = jnp.asarray(start.ravel()), jnp.asarray(end.ravel())
     duration = jnp.mod(end - start, 24.0)  # end == start: 0 h, off
     for sub in (1, 3):
-        hard = jax.vmap(lambda s, e: on_fraction(s, e, sub))(start, end)
-        soft = jax.vmap(lambda s, d: refs.relaxed_on_fraction(s, d, sub, 1e-4))(start, duration)
+        hard = jax.vmap(lambda s, e, sub=sub: on_fraction(s, e, sub))(start, end)
+        soft = jax.vmap(lambda s, d, sub=sub: refs.relaxed_on_fraction(s, d, sub, 1e-4))(
+            start, duration
+        )
         np.testing.assert_allclose(soft, hard, atol=1e-3)
     # fractional hours too (the continuous-hours timer), wrapping past midnight
     s, d = jnp.float32(21.5), jnp.float32(9.25)
     np.testing.assert_allclose(
         refs.relaxed_on_fraction(s, d, 2, 1e-4), on_fraction(s, jnp.mod(s + d, 24.0), 2), atol=1e-3
     )
+
     # smooth: moving a 10-h window one hour later shifts the light-weighted hour by one hour
     # (d/dstart of the on-hours' mean clock time = 10 h of window x 1), at an integer start too
     def clock(x):

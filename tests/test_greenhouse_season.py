@@ -18,7 +18,12 @@ from envs.greenhouse.env import make_greenhouse
 from envs.greenhouse.expert import expert_action, expert_schedule
 from envs.greenhouse.observation import denormalise
 from envs.greenhouse.season import expert_policy, format_summary, plot_season, run_season, summarize
-from envs.greenhouse.weather import STEFAN_BOLTZMANN, bundled_weather_path, load_weather, sky_temperature_from_clouds
+from envs.greenhouse.weather import (
+    STEFAN_BOLTZMANN,
+    bundled_weather_path,
+    load_weather,
+    sky_temperature_from_clouds,
+)
 
 DAYS = 160
 ALASKA = "703165TY.csv"
@@ -47,10 +52,14 @@ def write_epw(path: str, tmy3_path: str) -> None:
     from pvlib.iotools import read_tmy3
 
     df, meta = read_tmy3(tmy3_path, map_variables=True)
-    t_sky = sky_temperature_from_clouds(df["temp_air"].to_numpy(), df["temp_dew"].to_numpy(), df["OpqCld (tenths)"].to_numpy())
+    t_sky = sky_temperature_from_clouds(
+        df["temp_air"].to_numpy(), df["temp_dew"].to_numpy(), df["OpqCld (tenths)"].to_numpy()
+    )
     ir = STEFAN_BOLTZMANN * (t_sky + 273.15) ** 4
     ir[:24] = 9999.0
-    stamps = pd.date_range("2001-01-01 01:00", periods=8760, freq="h")  # a non-leap year, hour-ending
+    stamps = pd.date_range(
+        "2001-01-01 01:00", periods=8760, freq="h"
+    )  # a non-leap year, hour-ending
     hour = np.where(stamps.hour == 0, 24, stamps.hour)
     day_of = np.where(stamps.hour == 0, (stamps - pd.Timedelta(hours=1)).day, stamps.day)
     month = np.where(stamps.hour == 0, (stamps - pd.Timedelta(hours=1)).month, stamps.month)
@@ -69,12 +78,41 @@ def write_epw(path: str, tmy3_path: str) -> None:
     for i in range(8760):
         r = df.iloc[i]
         fields = [
-            2001, month[i], day_of[i], hour[i], 60, "?9?9?9?9E0?9?9?9?9?9?9?9?9?9?9?9?9?9?9?9*9*9?9?9?9",
-            r["temp_air"], r["temp_dew"], r["relative_humidity"], r["pressure"] * 100.0,
-            r["ghi_extra"], r["dni_extra"], round(float(ir[i]), 2), r["ghi"], r["dni"], r["dhi"],
-            999999, 999999, 999999, 9999, r["wind_direction"], r["wind_speed"],
-            r["TotCld (tenths)"], r["OpqCld (tenths)"], 9999, 77777, 9, 999999999,
-            r["precipitable_water"], 0.0, 0, 88, r["albedo"], 0.0, 1.0,
+            2001,
+            month[i],
+            day_of[i],
+            hour[i],
+            60,
+            "?9?9?9?9E0?9?9?9?9?9?9?9?9?9?9?9?9?9?9?9*9*9?9?9?9",
+            r["temp_air"],
+            r["temp_dew"],
+            r["relative_humidity"],
+            r["pressure"] * 100.0,
+            r["ghi_extra"],
+            r["dni_extra"],
+            round(float(ir[i]), 2),
+            r["ghi"],
+            r["dni"],
+            r["dhi"],
+            999999,
+            999999,
+            999999,
+            9999,
+            r["wind_direction"],
+            r["wind_speed"],
+            r["TotCld (tenths)"],
+            r["OpqCld (tenths)"],
+            9999,
+            77777,
+            9,
+            999999999,
+            r["precipitable_water"],
+            0.0,
+            0,
+            88,
+            r["albedo"],
+            0.0,
+            1.0,
         ]
         assert len(fields) == 35
         rows.append(",".join(str(f) for f in fields))
@@ -95,7 +133,9 @@ def _policy_actions(env, state, key):
 
     def phys(temp, co2, lamps, irrigation):
         x = jnp.zeros((4, 24), jnp.float32).at[0].set(temp).at[1].set(co2)
-        return sp.from_physical(x.at[2, :2].set(jnp.asarray(lamps)).at[3, :2].set(jnp.asarray(irrigation)))
+        return sp.from_physical(
+            x.at[2, :2].set(jnp.asarray(lamps)).at[3, :2].set(jnp.asarray(irrigation))
+        )
 
     expert = expert_action(env, state)
     expert_dry = expert.at[sp.index("irrigation"), :2].set(-1.0)  # start = end = 0: never irrigate
@@ -165,9 +205,13 @@ def test_no_nan_or_inf_over_whole_seasons(seasons):
     assert np.all(np.abs(seasons["obs"]) <= 1.0)
     m = seasons["metrics"]
     assert np.all(m.cumulative_yield >= 0.0) and np.all(m.daily_yield >= -1e-6)
-    assert np.all(m.heating_mj >= 0.0) and np.all(m.co2_kg >= 0.0) and np.all(m.water_stress >= -1e-6)
+    assert (
+        np.all(m.heating_mj >= 0.0) and np.all(m.co2_kg >= 0.0) and np.all(m.water_stress >= -1e-6)
+    )
     # indoor climate stays physical under every policy (from the observation, previous day)
-    indoor = np.asarray(denormalise(jnp.asarray(seasons["obs"])))[..., :96].reshape(len(ROWS), DAYS, 4, 24)
+    indoor = np.asarray(denormalise(jnp.asarray(seasons["obs"])))[..., :96].reshape(
+        len(ROWS), DAYS, 4, 24
+    )
     assert np.all((indoor[..., 0, :] > -15.0) & (indoor[..., 0, :] < 40.0))  # °C
     assert np.all((indoor[..., 1, :] >= 0.0) & (indoor[..., 1, :] <= 100.0 + 1e-3))  # RH %
     assert np.all(indoor[..., 2, :] >= 200.0)  # ppm
@@ -186,10 +230,14 @@ def test_done_only_at_season_end(seasons):
 def test_expert_yield_realistic_and_first_harvest(seasons):
     m = seasons["metrics"]
     y = _yield(seasons, "greensboro", EXPERT)
-    assert 15.0 <= y <= 40.0, f"expert season yield {y:.1f} kg/m² outside the heated-greenhouse range"
+    assert 15.0 <= y <= 40.0, (
+        f"expert season yield {y:.1f} kg/m² outside the heated-greenhouse range"
+    )
     cum = m.cumulative_yield[_row("greensboro", EXPERT)]
     first = int(np.argmax(cum >= 0.1)) + 1
-    assert 40 <= first <= 80, f"first harvest on day {first}, expected roughly two months after planting"
+    assert 40 <= first <= 80, (
+        f"first harvest on day {first}, expected roughly two months after planting"
+    )
     # the cumulative reward sums the cumulative yields (the paper's return, hundreds)
     r = seasons["reward"][_row("greensboro", EXPERT)]
     np.testing.assert_allclose(r, cum, rtol=1e-6)
@@ -213,7 +261,9 @@ def test_no_irrigation_hurts_yield(seasons):
 def test_controllers_track_setpoints(seasons, weathers):
     """Heating holds the expert's (light-dependent) night setpoint; CO2 dosing reaches 700 ppm
     in the light in winter."""
-    indoor = np.asarray(denormalise(jnp.asarray(seasons["obs"][_row("greensboro", EXPERT)])))[:, :96].reshape(DAYS, 4, 24)
+    indoor = np.asarray(denormalise(jnp.asarray(seasons["obs"][_row("greensboro", EXPERT)])))[
+        :, :96
+    ].reshape(DAYS, 4, 24)
     env = make_greenhouse()
     doy = (env.config.start_day_of_year - 1 + np.arange(DAYS)) % 365
     ghi = weathers["greensboro"].ghi[doy]
@@ -240,7 +290,11 @@ def test_epw_reader_matches_tmy3(weathers):
 
 def test_different_weather_changes_outcome(seasons):
     m = seasons["metrics"]
-    gso, ak, epw = _yield(seasons, "greensboro", EXPERT), _yield(seasons, "alaska", EXPERT), _yield(seasons, "epw", EXPERT)
+    gso, ak, epw = (
+        _yield(seasons, "greensboro", EXPERT),
+        _yield(seasons, "alaska", EXPERT),
+        _yield(seasons, "epw", EXPERT),
+    )
     assert abs(ak - gso) > 0.1 * gso
     assert epw == pytest.approx(ak, rel=2e-3)  # same data through the EPW reader
     heat = {w: m.heating_mj[_row(w, EXPERT)].sum() for w in ("greensboro", "alaska")}
@@ -254,7 +308,9 @@ def test_run_season_summary_and_plot(seasons, tmp_path):
     env = make_greenhouse()
     trace = run_season(env, expert_policy, jax.random.PRNGKey(0))
     assert trace.reward.shape == (DAYS,)
-    assert float(trace.metrics.cumulative_yield[-1]) == pytest.approx(_yield(seasons, "greensboro", EXPERT), rel=1e-4)
+    assert float(trace.metrics.cumulative_yield[-1]) == pytest.approx(
+        _yield(seasons, "greensboro", EXPERT), rel=1e-4
+    )
     s = summarize(trace)
     assert s["first_harvest_day"] == int(trace.first_harvest_day) > 0
     assert s["return"] == pytest.approx(float(np.sum(trace.reward)), rel=1e-5)

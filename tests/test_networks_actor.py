@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from score_jax.core.spaces import CompositeSpace, SubSpace
 from score_jax.networks import ActorConfig, ActorOutput, Actors, grow_agents, sample_actions
-from score_jax.spaces import CompositeSpace, SubSpace
 
 # continuous 2-dim, discrete 1-dim (5 choices), discrete 2-dim (3 choices), continuous 1-dim
 SPACE = CompositeSpace(
@@ -27,7 +27,9 @@ CFG = ActorConfig(hidden=(16,))
 
 @pytest.fixture(scope="module")
 def actors():
-    model = Actors(CFG, SPACE.n, WIDTH, SPACE.max_choices, discrete_width=2)  # logits only for the first 2 columns
+    model = Actors(
+        CFG, SPACE.n, WIDTH, SPACE.max_choices, discrete_width=2
+    )  # logits only for the first 2 columns
     params = jax.jit(model.init)(jax.random.PRNGKey(0), jnp.zeros(OBS))["params"]
     return model, params
 
@@ -82,7 +84,8 @@ def test_log_prob_matches_hand_computation():
     mean, log_std = 0.3, -0.7
     logits = jnp.array([0.2, -1.0, 1.5, 0.1, 9.0])  # the 5th choice is invalid (n_choices = 4)
     out = ActorOutput(
-        mean=jnp.array([[mean, 5.0, 5.0]]), log_std=jnp.array([[log_std, 1.0, 1.0]]),
+        mean=jnp.array([[mean, 5.0, 5.0]]),
+        log_std=jnp.array([[log_std, 1.0, 1.0]]),
         logits=jnp.stack([jnp.zeros(5), logits, jnp.zeros(5)])[None],
     )
     dim_mask = jnp.array([[True, True, False]])
@@ -99,7 +102,9 @@ def test_log_prob_matches_hand_computation():
         assert action[0, 1] == np.float32(k) / np.float32(3) * np.float32(2) - np.float32(1)
         assert k < 4 and action[0, 2] == 0.0
         lp = np.asarray(jax.nn.log_softmax(logits[:4]))
-        disc = float(np.sum(np.exp(lp) * lp))  # exact expectation: minus the entropy of the 4 valid choices
+        disc = float(
+            np.sum(np.exp(lp) * lp)
+        )  # exact expectation: minus the entropy of the 4 valid choices
         np.testing.assert_allclose(float(logp[0]), cont + disc, rtol=2e-4, atol=2e-4)
 
 
@@ -107,8 +112,10 @@ def test_discrete_entropy_bonus_has_a_gradient():
     """The expected -log p of a discrete dim is its entropy, so an entropy bonus moves the logits
     towards uniform (with a sampled log p(k) the expected gradient would be zero)."""
     logits = jnp.array([[[2.0, 0.0, -1.0]]])
-    out = lambda l: ActorOutput(mean=jnp.zeros((1, 1)), log_std=jnp.zeros((1, 1)), logits=l)
-    neg_entropy = lambda l: sample_actions(out(l), jnp.array([[True]]), jnp.array([[3]]), jax.random.PRNGKey(0))[1][0]
+    out = lambda lg: ActorOutput(mean=jnp.zeros((1, 1)), log_std=jnp.zeros((1, 1)), logits=lg)
+    neg_entropy = lambda lg: sample_actions(
+        out(lg), jnp.array([[True]]), jnp.array([[3]]), jax.random.PRNGKey(0)
+    )[1][0]
     g = jax.grad(neg_entropy)(logits)
     stepped = logits - 0.5 * g
     assert float(neg_entropy(stepped)) < float(neg_entropy(logits))
@@ -116,7 +123,8 @@ def test_discrete_entropy_bonus_has_a_gradient():
 
 def test_deterministic_mode():
     out = ActorOutput(
-        mean=jnp.array([[0.4, 0.0]]), log_std=jnp.zeros((1, 2)),
+        mean=jnp.array([[0.4, 0.0]]),
+        log_std=jnp.zeros((1, 2)),
         logits=jnp.array([[[0.0, 0.0, 0.0], [0.1, 2.0, 3.0]]]),  # the 3.0 is invalid (n_choices 2)
     )
     dim_mask, n_choices = jnp.array([[True, True]]), jnp.array([[0, 2]])
@@ -137,9 +145,16 @@ def test_gradients_flow_through_both_kinds(actors):
         return jnp.sum(a * weights), jnp.sum(logp)
 
     key = jax.random.PRNGKey(4)
-    both = jax.jit(lambda p: (jax.grad(lambda q: objective(q, key)[0])(p), jax.grad(lambda q: objective(q, key)[1])(p)))
+    both = jax.jit(
+        lambda p: (
+            jax.grad(lambda q: objective(q, key)[0])(p),
+            jax.grad(lambda q: objective(q, key)[1])(p),
+        )
+    )
     g_val, g_logp = both(params)
-    out_kernel = lambda g: np.asarray(g["agents"]["mlp"]["out"]["kernel"])  # [n, hidden, width * (2 + C)]
+    out_kernel = lambda g: np.asarray(
+        g["agents"]["mlp"]["out"]["kernel"]
+    )  # [n, hidden, width * (2 + C)]
     # Value gradients reach every agent: continuous ones via mean, discrete via logits.
     for i in range(SPACE.n):
         assert np.any(out_kernel(g_val)[i] != 0), f"no action gradient for agent {i}"
@@ -154,16 +169,23 @@ def test_gradients_flow_through_both_kinds(actors):
 
 def test_grow_agents(actors):
     model, params = actors
-    extra = jax.jit(Actors(CFG, 2, WIDTH, SPACE.max_choices, discrete_width=2).init)(jax.random.PRNGKey(9), jnp.zeros(OBS))["params"]
+    extra = jax.jit(Actors(CFG, 2, WIDTH, SPACE.max_choices, discrete_width=2).init)(
+        jax.random.PRNGKey(9), jnp.zeros(OBS)
+    )["params"]
     grown = grow_agents(params, extra)
     assert all(x.shape[0] == SPACE.n + 2 for x in jax.tree_util.tree_leaves(grown))
     big = Actors(CFG, SPACE.n + 2, WIDTH, SPACE.max_choices, discrete_width=2)
     obs = jnp.ones(OBS)
-    out_big, out_old = jax.jit(big.apply)({"params": grown}, obs), model.apply({"params": params}, obs)
+    out_big, out_old = (
+        jax.jit(big.apply)({"params": grown}, obs),
+        model.apply({"params": params}, obs),
+    )
     np.testing.assert_allclose(out_big.mean[: SPACE.n], out_old.mean, rtol=1e-6)
     np.testing.assert_allclose(out_big.logits[: SPACE.n], out_old.logits, rtol=1e-6)
     with pytest.raises(ValueError, match="differ in shape"):
-        wider = jax.eval_shape(Actors(CFG, 1, WIDTH + 1, SPACE.max_choices).init, jax.random.PRNGKey(9), jnp.zeros(OBS))["params"]
+        wider = jax.eval_shape(
+            Actors(CFG, 1, WIDTH + 1, SPACE.max_choices).init, jax.random.PRNGKey(9), jnp.zeros(OBS)
+        )["params"]
         grow_agents(params, jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), wider))
 
 
@@ -174,12 +196,18 @@ def test_fresh_actor_plays_the_default_and_explores_around_it(actors):
     model, params = actors
     default = jnp.pad(jnp.asarray(SPACE.default_action()), ((0, 0), (0, WIDTH - SPACE.max_dim)))
     out = model.apply({"params": params}, jnp.linspace(-1, 1, OBS))
-    det, _ = sample_actions(out, DIM_MASK, N_CHOICES, jax.random.PRNGKey(0), True, 1.0, default, 3.0)
+    det, _ = sample_actions(
+        out, DIM_MASK, N_CHOICES, jax.random.PRNGKey(0), True, 1.0, default, 3.0
+    )
     np.testing.assert_allclose(det, default, atol=0.05)  # continuous: tanh(mean + atanh(default))
     real_discrete = np.asarray(DIM_MASK & (N_CHOICES > 0))
-    np.testing.assert_array_equal(np.asarray(det)[real_discrete], np.asarray(default)[real_discrete])
+    np.testing.assert_array_equal(
+        np.asarray(det)[real_discrete], np.asarray(default)[real_discrete]
+    )
     keys = jax.random.split(jax.random.PRNGKey(2), 4000)
-    acts, _ = jax.jit(jax.vmap(lambda k: sample_actions(out, DIM_MASK, N_CHOICES, k, False, 1.0, default, 3.0)))(keys)
+    acts, _ = jax.jit(
+        jax.vmap(lambda k: sample_actions(out, DIM_MASK, N_CHOICES, k, False, 1.0, default, 3.0))
+    )(keys)
     hit = np.mean(np.asarray(acts)[:, 1, 0] == np.asarray(default)[1, 0])  # k5: 5 choices
     assert abs(hit - math.e**3 / (math.e**3 + 4)) < 0.05
     # without the prior the same actor is near uniform over the 5 choices

@@ -7,8 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from score_jax.networks.critic import HyperNet
-from score_jax.networks.gat import flatten_gat_weights
 from score_jax.networks import (
     HVAE,
     CriticConfig,
@@ -23,6 +21,7 @@ from score_jax.networks import (
     init_gat_weights,
     unflatten_gat_weights,
 )
+from score_jax.networks.critic import HyperNet
 
 OBS, WIDTH, N = 5, 4, 4
 HCFG = HVAEConfig(obs_embed_dim=8, space_embed_dim=4, latent_dim=4, hidden=16, predict_steps=2)
@@ -66,7 +65,9 @@ ALL_CONFIGS = [
 # --- gat_layer ------------------------------------------------------------------------
 def test_gat_layer_matches_hand_computation():
     x = jnp.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
-    w = GATWeights(theta=jnp.array([[1.0, 2.0], [0.5, -1.0]]), attn=jnp.array([0.3, -0.2, 0.5, 0.1]))
+    w = GATWeights(
+        theta=jnp.array([[1.0, 2.0], [0.5, -1.0]]), attn=jnp.array([0.3, -0.2, 0.5, 0.1])
+    )
     mask = jnp.array([True, True, False])
     out, alpha = gat_layer(w, x, mask, "attention")
     h = np.asarray(x) @ np.asarray(w.theta)
@@ -96,7 +97,7 @@ def test_gat_layer_masked_inputs_never_leak_even_nan():
         out, alpha = gat_layer(w, x, mask, agg)
         out_bad, alpha_bad = gat_layer(w, bad, mask, agg)
         assert np.array_equal(out, out_bad) and np.array_equal(alpha, alpha_bad)
-        grad = jax.grad(lambda x: gat_layer(w, x, mask, agg)[0].sum())(bad)
+        grad = jax.grad(lambda x, agg=agg: gat_layer(w, x, mask, agg)[0].sum())(bad)
         assert np.all(np.isfinite(grad)) and np.all(np.asarray(grad)[[1, 3]] == 0)
     # all agents masked: zeros, no NaN
     out, alpha = gat_layer(w, x, jnp.zeros(4, bool), "attention")
@@ -109,14 +110,16 @@ def test_flat_gat_weights_roundtrip():
     flat = flatten_gat_weights(ws)
     assert flat.shape == (gat_num_params(dims),) == (6 * 4 + 8 + 4 * 3 + 6,)
     back = unflatten_gat_weights(flat, dims)
-    for a, b in zip(ws, back):
+    for a, b in zip(ws, back, strict=True):
         assert np.array_equal(a.theta, b.theta) and np.array_equal(a.attn, b.attn)
     with pytest.raises(ValueError, match="need"):
         unflatten_gat_weights(flat[:-1], dims)
 
 
 # --- critic -----------------------------------------------------------------------------
-@pytest.mark.parametrize("cfg", ALL_CONFIGS, ids=lambda c: f"{c.aggregation}-hyper{int(c.hypernet)}-asrl{int(c.asrl)}")
+@pytest.mark.parametrize(
+    "cfg", ALL_CONFIGS, ids=lambda c: f"{c.aggregation}-hyper{int(c.hypernet)}-asrl{int(c.asrl)}"
+)
 def test_critic_permutation_and_masking_invariance(cfg, hvae_params, inputs):
     critic, params = make(cfg, hvae_params, inputs)
     obs, actions, dim_mask, c, _ = inputs
@@ -124,30 +127,64 @@ def test_critic_permutation_and_masking_invariance(cfg, hvae_params, inputs):
     q = critic.apply({"params": params}, obs, actions, dim_mask, c, mask, hvae_params)
     assert q.shape == () and np.isfinite(q)
     perm = jnp.array([3, 0, 2, 1])
-    q_perm = critic.apply({"params": params}, obs, actions[perm], dim_mask[perm], c[perm], mask[perm], hvae_params)
+    q_perm = critic.apply(
+        {"params": params}, obs, actions[perm], dim_mask[perm], c[perm], mask[perm], hvae_params
+    )
     np.testing.assert_allclose(q_perm, q, rtol=1e-5, atol=1e-6)
     # Whatever a masked agent carries changes nothing (NaN included).
-    q_bad = critic.apply({"params": params}, obs, actions.at[2].set(jnp.nan), dim_mask, c.at[2].set(37.0), mask, hvae_params)
+    q_bad = critic.apply(
+        {"params": params},
+        obs,
+        actions.at[2].set(jnp.nan),
+        dim_mask,
+        c.at[2].set(37.0),
+        mask,
+        hvae_params,
+    )
     assert np.array_equal(q_bad, q)
     # A padded agent (extra masked row) changes nothing either.
     pad = lambda x, v: jnp.concatenate([x, jnp.full((1, *x.shape[1:]), v, x.dtype)])
-    q_pad = critic.apply({"params": params}, obs, pad(actions, 0.5), pad(dim_mask, True), pad(c, 1.0), pad(mask, False), hvae_params)
+    q_pad = critic.apply(
+        {"params": params},
+        obs,
+        pad(actions, 0.5),
+        pad(dim_mask, True),
+        pad(c, 1.0),
+        pad(mask, False),
+        hvae_params,
+    )
     np.testing.assert_allclose(q_pad, q, rtol=1e-6, atol=1e-6)
-    alpha = critic.apply({"params": params}, obs, actions, dim_mask, c, mask, hvae_params, method=GraphCritic.attention_weights)
+    alpha = critic.apply(
+        {"params": params},
+        obs,
+        actions,
+        dim_mask,
+        c,
+        mask,
+        hvae_params,
+        method=GraphCritic.attention_weights,
+    )
     assert alpha.shape == (cfg.gat_layers, N, N)
     alpha = np.asarray(alpha)
     assert np.all(alpha[:, 2, :] == 0) and np.all(alpha[:, :, 2] == 0)
     if cfg.aggregation != "sum":
         np.testing.assert_allclose(alpha[:, [0, 1, 3]].sum(-1), 1.0, rtol=1e-5)
     # Active agents do matter.
-    q_moved = critic.apply({"params": params}, obs, actions.at[0, 0].add(0.5), dim_mask, c, mask, hvae_params)
+    q_moved = critic.apply(
+        {"params": params}, obs, actions.at[0, 0].add(0.5), dim_mask, c, mask, hvae_params
+    )
     assert q_moved != q
 
 
 def test_aggregation_switch_changes_the_function(hvae_params, inputs):
     # Same params (the aggregation has none of its own), different function.
     critic, params = make(CCFG, hvae_params, inputs)
-    qs = [GraphCritic(dataclasses.replace(CCFG, aggregation=a), HCFG, OBS, WIDTH).apply({"params": params}, *inputs, hvae_params) for a in ("attention", "mean", "sum")]
+    qs = [
+        GraphCritic(dataclasses.replace(CCFG, aggregation=a), HCFG, OBS, WIDTH).apply(
+            {"params": params}, *inputs, hvae_params
+        )
+        for a in ("attention", "mean", "sum")
+    ]
     assert len({float(q) for q in qs}) == 3
 
 
@@ -160,13 +197,19 @@ def test_hypernet_switch_uses_the_same_gat(hvae_params, inputs):
     obs = inputs[0]
     dims = (CCFG.agent_dim,) * (CCFG.gat_layers + 1)
     # The per-layer weights it generates, flattened, are the plain critic's flat weight vector.
-    flat = flatten_gat_weights(HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, obs))
+    flat = flatten_gat_weights(
+        HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, obs)
+    )
     same = {"p_w": hp["p_w"], "f_xi": hp["f_xi"], "gat": {"weights": flat}}
     q_hyper = hyper_critic.apply({"params": hp}, *inputs, hvae_params)
-    np.testing.assert_allclose(plain_critic.apply({"params": same}, *inputs, hvae_params), q_hyper, rtol=1e-5)
+    np.testing.assert_allclose(
+        plain_critic.apply({"params": same}, *inputs, hvae_params), q_hyper, rtol=1e-5
+    )
     # ... and the hypernet's weights depend on the state, so a fixed GAT is a different function.
     other_obs = -obs
-    flat_other = flatten_gat_weights(HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, other_obs))
+    flat_other = flatten_gat_weights(
+        HyperNet(dims, CCFG.hyper_hidden).apply({"params": hp["hyper"]}, other_obs)
+    )
     assert not np.allclose(flat, flat_other)
     q_hyper_other = hyper_critic.apply({"params": hp}, other_obs, *inputs[1:], hvae_params)
     q_plain_other = plain_critic.apply({"params": same}, other_obs, *inputs[1:], hvae_params)
@@ -175,8 +218,20 @@ def test_hypernet_switch_uses_the_same_gat(hvae_params, inputs):
 
 def test_asrl_switch_freezes_the_hvae(hvae_params, inputs):
     critic, params = make(CCFG, hvae_params, inputs)
-    hvae_names = {"obs_encoder", "action_encoder", "encoder", "decoder", "prior", "set_element", "space_head"}
-    flat_names = {getattr(k, "key", None) for path, _ in jax.tree_util.tree_flatten_with_path(params)[0] for k in path}
+    hvae_names = {
+        "obs_encoder",
+        "action_encoder",
+        "encoder",
+        "decoder",
+        "prior",
+        "set_element",
+        "space_head",
+    }
+    flat_names = {
+        getattr(k, "key", None)
+        for path, _ in jax.tree_util.tree_flatten_with_path(params)[0]
+        for k in path
+    }
     assert not flat_names & hvae_names and set(params) == {"p_w", "hyper", "f_xi"}
     g_hvae = jax.grad(lambda hp: critic.apply({"params": params}, *inputs, hp))(hvae_params)
     assert all(np.all(np.asarray(g) == 0) for g in jax.tree_util.tree_leaves(g_hvae))
@@ -184,7 +239,9 @@ def test_asrl_switch_freezes_the_hvae(hvae_params, inputs):
     assert all(np.any(np.asarray(g) != 0) for g in jax.tree_util.tree_leaves(g_critic["p_w"]))
     # The HVAE does drive the critic: other HVAE params, other Q.
     other = jax.tree_util.tree_map(lambda x: x * 1.1, hvae_params)
-    assert critic.apply({"params": params}, *inputs, other) != critic.apply({"params": params}, *inputs, hvae_params)
+    assert critic.apply({"params": params}, *inputs, other) != critic.apply(
+        {"params": params}, *inputs, hvae_params
+    )
     with pytest.raises(ValueError, match="hvae_params"):
         critic.apply({"params": params}, *inputs, None)
 
@@ -197,7 +254,9 @@ def test_asrl_switch_freezes_the_hvae(hvae_params, inputs):
     g = jax.grad(lambda p: own.apply({"params": p}, *inputs, None))(own_params)
     assert any(np.any(np.asarray(x) != 0) for x in jax.tree_util.tree_leaves(g["encoder"]))
     mask = finetune_mask(own_params)
-    assert not any(jax.tree_util.tree_leaves(mask["encoder"])) and all(jax.tree_util.tree_leaves(mask["p_w"]))
+    assert not any(jax.tree_util.tree_leaves(mask["encoder"])) and all(
+        jax.tree_util.tree_leaves(mask["p_w"])
+    )
 
 
 def test_twin_critic(hvae_params, inputs):
@@ -209,7 +268,11 @@ def test_twin_critic(hvae_params, inputs):
     assert leaf.shape[0] == 2
     # Each slice is a GraphCritic.
     one = jax.tree_util.tree_map(lambda x: x[1], params["critics"])
-    np.testing.assert_allclose(GraphCritic(CCFG, HCFG, OBS, WIDTH).apply({"params": one}, *inputs, hvae_params), q[1], rtol=1e-5)
+    np.testing.assert_allclose(
+        GraphCritic(CCFG, HCFG, OBS, WIDTH).apply({"params": one}, *inputs, hvae_params),
+        q[1],
+        rtol=1e-5,
+    )
     assert all(jax.tree_util.tree_leaves(finetune_mask(params)))
     # batched use, as the learner does it
     batch = jax.tree_util.tree_map(lambda x: jnp.stack([x, x, x]), inputs)
@@ -223,9 +286,15 @@ def test_mlp_on_parts_is_the_mlp_on_their_concatenation():
     from score_jax.networks.mlp import MLP
 
     mlp = MLP((8,), 4)
-    e_o, actions, c = jnp.arange(3.0), jax.random.normal(jax.random.PRNGKey(1), (5, 2)), jnp.full((5, 1), 0.5)
+    e_o, actions, c = (
+        jnp.arange(3.0),
+        jax.random.normal(jax.random.PRNGKey(1), (5, 2)),
+        jnp.full((5, 1), 0.5),
+    )
     full = jnp.concatenate([jnp.broadcast_to(e_o, (5, 3)), actions, c], -1)
     params = mlp.init(jax.random.PRNGKey(0), full)
     same_init = mlp.init(jax.random.PRNGKey(0), (e_o, actions, c))
     jax.tree.map(np.testing.assert_array_equal, params, same_init)
-    np.testing.assert_allclose(mlp.apply(params, (e_o, actions, c)), mlp.apply(params, full), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        mlp.apply(params, (e_o, actions, c)), mlp.apply(params, full), rtol=1e-5, atol=1e-6
+    )

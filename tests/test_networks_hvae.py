@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import envs
-from score_jax.asrl import collect_observation_sets, embed_new_spaces, train_hvae
+from score_jax.agents.score.asrl import collect_observation_sets, embed_new_spaces, train_hvae
 from score_jax.networks import HVAE, HVAEConfig
 
 WIDTH = 4  # wider than the probe's max_dim (3): the transfer convention
@@ -24,17 +24,47 @@ def probe():
 def trained(probe):
     """HVAE trained on sub-spaces a, b of the probe; c is held at its default (a subset run)."""
     fixed = jnp.array([False, False, True])
-    return train_hvae(probe, jax.random.PRNGKey(1), CFG, [0, 1], K, J, STEPS, WIDTH, fixed_default=fixed, warmup_steps=WARMUP)
+    return train_hvae(
+        probe,
+        jax.random.PRNGKey(1),
+        CFG,
+        [0, 1],
+        K,
+        J,
+        STEPS,
+        WIDTH,
+        fixed_default=fixed,
+        warmup_steps=WARMUP,
+    )
 
 
 def test_collect_observation_sets_layout(probe):
     fixed = jnp.array([False, False, True])
-    sets = collect_observation_sets(probe, jax.random.PRNGKey(0), [0, 1], 3, 5, 2, WIDTH, warmup_steps=WARMUP, fixed_default=fixed)
+    sets = collect_observation_sets(
+        probe,
+        jax.random.PRNGKey(0),
+        [0, 1],
+        3,
+        5,
+        2,
+        WIDTH,
+        warmup_steps=WARMUP,
+        fixed_default=fixed,
+    )
     assert sets.obs.shape == (2, 15, 4) and sets.prev_obs.shape == (2, 15, 4)
     assert sets.actions.shape == (2, 15, WIDTH) and sets.future.shape == (2, 15, 2, 4)
     np.testing.assert_array_equal(sets.dim_mask, [[1, 1, 0, 0], [1, 1, 1, 0]])
-    assert np.all(np.asarray(sets.actions)[~np.broadcast_to(np.asarray(sets.dim_mask)[:, None], sets.actions.shape)] == 0)
-    assert np.all(np.abs(sets.actions) <= 1) and bool(sets.future_mask.all()) and bool(sets.set_mask.all())
+    assert np.all(
+        np.asarray(sets.actions)[
+            ~np.broadcast_to(np.asarray(sets.dim_mask)[:, None], sets.actions.shape)
+        ]
+        == 0
+    )
+    assert (
+        np.all(np.abs(sets.actions) <= 1)
+        and bool(sets.future_mask.all())
+        and bool(sets.set_mask.all())
+    )
     np.testing.assert_array_equal(sets.group[0], np.repeat(np.arange(3), 5))
     # The j sub-actions of one fixing start from one state and differ from each other.
     prev = np.asarray(sets.prev_obs).reshape(2, 3, 5, 4)
@@ -42,7 +72,17 @@ def test_collect_observation_sets_layout(probe):
     acts = np.asarray(sets.actions).reshape(2, 3, 5, WIDTH)
     assert len(np.unique(acts[0, 0, :, 0])) == 5
     # Deterministic under a seed.
-    again = collect_observation_sets(probe, jax.random.PRNGKey(0), [0, 1], 3, 5, 2, WIDTH, warmup_steps=WARMUP, fixed_default=fixed)
+    again = collect_observation_sets(
+        probe,
+        jax.random.PRNGKey(0),
+        [0, 1],
+        3,
+        5,
+        2,
+        WIDTH,
+        warmup_steps=WARMUP,
+        fixed_default=fixed,
+    )
     assert np.array_equal(again.obs, sets.obs) and np.array_equal(again.actions, sets.actions)
     with pytest.raises(ValueError, match="action_width"):
         collect_observation_sets(probe, jax.random.PRNGKey(0), [0], 1, 1, 1, 2)
@@ -57,14 +97,28 @@ def test_elbo_falls_on_probe(trained):
     print(f"probe ELBO per observation {first:.2f} -> {last:.2f}")
     assert last > first + 5.0, f"ELBO per observation {first:.2f} -> {last:.2f}"
     m = trained.metrics
-    assert float(m.kl_z) > 1.0, "the latent sub-action z carries information (no posterior collapse)"
+    assert float(m.kl_z) > 1.0, (
+        "the latent sub-action z carries information (no posterior collapse)"
+    )
 
 
 def test_embeddings_distinguish_sub_spaces(probe, trained):
     c = np.asarray(trained.c)
     assert c.shape == (2, CFG.space_embed_dim) and np.all(np.isfinite(c))
     fixed = jnp.array([False, False, True])
-    c_again = np.asarray(embed_new_spaces(probe, trained.model, trained.params, jax.random.PRNGKey(11), [0, 1], K, J, WARMUP, fixed))
+    c_again = np.asarray(
+        embed_new_spaces(
+            probe,
+            trained.model,
+            trained.params,
+            jax.random.PRNGKey(11),
+            [0, 1],
+            K,
+            J,
+            WARMUP,
+            fixed,
+        )
+    )
     within = np.linalg.norm(c - c_again, axis=-1)  # same sub-space, independent sets
     between = np.linalg.norm(c[0] - c[1])
     print(f"between {between:.3f}, within {within}")
@@ -73,8 +127,16 @@ def test_embeddings_distinguish_sub_spaces(probe, trained):
 
 def test_unseen_sub_space_is_embedded(probe, trained):
     fixed = jnp.array([False, False, True])
-    c_new = np.asarray(embed_new_spaces(probe, trained.model, trained.params, jax.random.PRNGKey(12), [2], K, J, WARMUP, fixed))
-    c_new2 = np.asarray(embed_new_spaces(probe, trained.model, trained.params, jax.random.PRNGKey(13), [2], K, J, WARMUP, fixed))
+    c_new = np.asarray(
+        embed_new_spaces(
+            probe, trained.model, trained.params, jax.random.PRNGKey(12), [2], K, J, WARMUP, fixed
+        )
+    )
+    c_new2 = np.asarray(
+        embed_new_spaces(
+            probe, trained.model, trained.params, jax.random.PRNGKey(13), [2], K, J, WARMUP, fixed
+        )
+    )
     assert c_new.shape == (1, CFG.space_embed_dim) and np.all(np.isfinite(c_new))
     within = np.linalg.norm(c_new - c_new2)
     to_seen = np.linalg.norm(np.asarray(trained.c) - c_new, axis=-1)
@@ -83,7 +145,14 @@ def test_unseen_sub_space_is_embedded(probe, trained):
     # ... and the frozen action encoder takes it: finite, action-dependent latents.
     model, params = trained.model, trained.params
     dm = jnp.array([True, False, False, False])
-    z = lambda a: model.apply({"params": params}, jnp.zeros(4), jnp.array([a, 0, 0, 0.0]), dm, c_new[0], method=HVAE.encode_action)[0]
+    z = lambda a: model.apply(
+        {"params": params},
+        jnp.zeros(4),
+        jnp.array([a, 0, 0, 0.0]),
+        dm,
+        c_new[0],
+        method=HVAE.encode_action,
+    )[0]
     assert np.all(np.isfinite(z(0.5))) and not np.allclose(z(-1.0), z(1.0), atol=1e-3)
 
 
@@ -95,9 +164,12 @@ def test_elbo_falls_on_greenhouse():
         pytest.skip(f"greenhouse environment not available yet: {err}")
     cfg = HVAEConfig(obs_embed_dim=16, space_embed_dim=4, latent_dim=8, hidden=32, predict_steps=2)
     width = env.space.max_dim
-    res = train_hvae(env, jax.random.PRNGKey(0), cfg, range(env.space.n), 4, 4, 150, width, warmup_steps=20)
+    res = train_hvae(
+        env, jax.random.PRNGKey(0), cfg, range(env.space.n), 4, 4, 150, width, warmup_steps=20
+    )
     elbo = res.elbo_history
     assert np.all(np.isfinite(elbo)) and res.c.shape == (env.space.n, 4)
     print(f"greenhouse ELBO per observation {elbo[:10].mean():.1f} -> {elbo[-10:].mean():.1f}")
-    assert elbo[-10:].mean() > elbo[:10].mean() + 100.0, f"{elbo[:10].mean():.1f} -> {elbo[-10:].mean():.1f}"
-
+    assert elbo[-10:].mean() > elbo[:10].mean() + 100.0, (
+        f"{elbo[:10].mean():.1f} -> {elbo[-10:].mean():.1f}"
+    )

@@ -1,4 +1,5 @@
-"""Replay ring buffer, auto-reset, subset-agent actions and evaluation under failures (probe env)."""
+"""Replay ring buffer, auto-reset, subset-agent actions and evaluation under failures (probe
+env)."""
 
 import jax
 import jax.numpy as jnp
@@ -6,15 +7,22 @@ import numpy as np
 
 import envs
 from envs.wrappers import AutoReset
-from score_jax.evaluation import default_act_fn, evaluate
-from score_jax.failures import FailureMode
-from score_jax.replay import Transition, replay_add, replay_init, replay_sample
-from score_jax.spaces import agents_to_env_action, sample_agent_actions
+from score_jax.agents.replay import Transition, replay_add, replay_init, replay_sample
+from score_jax.core.failures import FailureMode
+from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
+from score_jax.run.episodes import default_act_fn, evaluate
 
 
 def _transitions(start, b):
     v = jnp.arange(start, start + b, dtype=jnp.float32)
-    return Transition(obs=v[:, None], action=jnp.zeros((b, 2, 1)), reward=v, next_obs=v[:, None] + 1, terminal=jnp.zeros(b), active=jnp.ones((b, 2), bool))
+    return Transition(
+        obs=v[:, None],
+        action=jnp.zeros((b, 2, 1)),
+        reward=v,
+        next_obs=v[:, None] + 1,
+        terminal=jnp.zeros(b),
+        active=jnp.ones((b, 2), bool),
+    )
 
 
 def test_replay_ring_overwrites_oldest():
@@ -36,9 +44,10 @@ def test_auto_reset_restarts_episodes_and_reports_final_obs():
     step = jax.jit(env.step)
     a = jnp.zeros((3, 3))
     dones = []
-    for t in range(7):
+    for _t in range(7):
         prev_t = int(state.t)
-        state, final_obs = step(state, a)
+        state = step(state, a)
+        final_obs = state.info["final_obs"]
         dones.append(float(state.done))
         if state.done:
             assert int(state.t) == 0 and prev_t == 2  # a fresh episode started
@@ -56,13 +65,19 @@ def test_agents_to_env_action_keeps_uncontrolled_at_default():
     np.testing.assert_allclose(out[2], [0.5, 0.5, 0.5])
     a = sample_agent_actions(env.space, [2, 0], jax.random.PRNGKey(0), (100,), 5)
     assert a.shape == (100, 2, 5)
-    assert bool(jnp.all(a[:, 0, 1:] == 0)) and bool(jnp.all(a[:, 1, 2:] == 0))  # agent 0 is 'c' (1 dim), agent 1 is 'a' (2 dims)
+    assert bool(jnp.all(a[:, 0, 1:] == 0)) and bool(
+        jnp.all(a[:, 1, 2:] == 0)
+    )  # agent 0 is 'c' (1 dim), agent 1 is 'a' (2 dims)
 
 
 def test_evaluate_best_policy_and_failures():
     env = envs.make("probe", episode_length=5)
     best = lambda state, key: jax.vmap(env.best_action)(state.obs)
-    ev = jax.jit(lambda n_failed, mode: evaluate(env, best, jax.random.PRNGKey(1), 8, np.arange(3), n_failed, mode))
+    ev = jax.jit(
+        lambda n_failed, mode: evaluate(
+            env, best, jax.random.PRNGKey(1), 8, np.arange(3), n_failed, mode
+        )
+    )
     r0 = ev(0, int(FailureMode.DEFAULT))
     np.testing.assert_allclose(r0.returns, 5.0, atol=1e-5)
     np.testing.assert_array_equal(r0.lengths, 5)
@@ -70,5 +85,12 @@ def test_evaluate_best_policy_and_failures():
     assert float(r2.returns.mean()) < 5.0 - 1e-3  # failures cost reward
     # a policy equal to the defaults is unaffected by DEFAULT failures
     default = default_act_fn(env.space, np.arange(3), 3)
-    d0, d2 = (ev_d := jax.jit(lambda n: evaluate(env, default, jax.random.PRNGKey(1), 8, np.arange(3), n, 0)))(0), ev_d(2)
+    d0, d2 = (
+        (
+            ev_d := jax.jit(
+                lambda n: evaluate(env, default, jax.random.PRNGKey(1), 8, np.arange(3), n, 0)
+            )
+        )(0),
+        ev_d(2),
+    )
     np.testing.assert_allclose(d0.returns, d2.returns, atol=1e-5)

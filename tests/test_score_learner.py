@@ -14,11 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from score_jax import train_loop
-from score_jax.checkpoint import Checkpointer, CheckpointError, check_space_matches
-from score_jax.replay import replay_sample
-from score_jax.sac import actor_loss
-from score_jax.spaces import CompositeSpace, SubSpace
+from score_jax.agents.replay import replay_sample
+from score_jax.agents.sac.losses import actor_loss
+from score_jax.core.spaces import CompositeSpace, SubSpace
+from score_jax.run.build import build, restore_run
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches
+from score_jax.run.driver import NonFiniteError, train
 from tests.tiny import TINY_OFF_POLICY, TINY_SCORE, tiny_cli_args, tiny_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -28,7 +29,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 def finished_run(tmp_path_factory):
     """An uninterrupted tiny run (1000 steps, checkpoints every 400)."""
     run_dir = tmp_path_factory.mktemp("runs") / "uninterrupted"
-    return train_loop.train(tiny_config(run_dir), log=lambda *a: None)
+    return train(tiny_config(run_dir), log=lambda *a: None)
 
 
 def _params(state):
@@ -55,44 +56,75 @@ def test_update_does_not_recompile_when_masks_change(finished_run):
     batch = replay_sample(state.buffer, jax.random.PRNGKey(0), 64)
     for i, (valid, drop) in enumerate([([1, 1, 1], 0.1), ([1, 0, 1], 0.5), ([0, 1, 0], 0.0)]):
         agent = state.agent.replace(consts=state.agent.consts.replace(valid=jnp.array(valid, bool)))
-        b = batch.replace(active=jax.random.bernoulli(jax.random.PRNGKey(i), 0.7, batch.active.shape))
-        new, metrics = update(agent, b, jax.random.PRNGKey(i), algo.hyper.replace(dropnode_prob=jnp.float32(drop)))
-        assert np.isfinite(float(metrics.critic_loss))
+        b = batch.replace(
+            active=jax.random.bernoulli(jax.random.PRNGKey(i), 0.7, batch.active.shape)
+        )
+        new, metrics = update(
+            agent, b, jax.random.PRNGKey(i), algo.hyper.replace(dropnode_prob=jnp.float32(drop))
+        )
+        assert np.isfinite(float(metrics["critic_loss"]))
     assert len(traces) == 1
 
 
 def test_masked_agent_gets_no_actor_gradient(finished_run):
-    """An agent masked out of the critic (failed / dropped / invalid) gets exactly zero actor gradient."""
+    """An agent masked out of the critic (failed / dropped / invalid) gets exactly zero actor
+    gradient."""
     nets, state = finished_run.algo.networks, finished_run.state
     batch = replay_sample(state.buffer, jax.random.PRNGKey(0), 64)
     mask = jnp.broadcast_to(jnp.array([True, False, True]), (64, 3))
-    loss = lambda p: actor_loss(p, state.agent, batch, mask, jax.random.PRNGKey(0), nets.policy_fn, nets.q_fn)[0]
+    loss = lambda p: actor_loss(
+        p, state.agent, batch, mask, jax.random.PRNGKey(0), nets.policy_fn, nets.q_fn
+    )[0]
     grads = jax.jit(jax.grad(loss))(state.agent.actor)
-    per_agent = np.max(np.stack([np.abs(np.asarray(g)).reshape(3, -1).max(axis=1) for g in jax.tree.leaves(grads)]), axis=0)
+    per_agent = np.max(
+        np.stack(
+            [np.abs(np.asarray(g)).reshape(3, -1).max(axis=1) for g in jax.tree.leaves(grads)]
+        ),
+        axis=0,
+    )
     assert per_agent[1] == 0.0 and per_agent[0] > 0 and per_agent[2] > 0
 
 
 def test_sigkill_then_resume_equals_uninterrupted(finished_run, tmp_path):
     run_dir = tmp_path / "killed"
     env = {**os.environ, "PYTHONPATH": ROOT}
-    proc = subprocess.Popen([sys.executable, "train.py", *tiny_cli_args(run_dir)], cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "train.py", *tiny_cli_args(run_dir)],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+    )
     deadline = time.time() + 600
     while time.time() < deadline and proc.poll() is None:
-        steps = [d for d in os.listdir(run_dir / "checkpoints")] if (run_dir / "checkpoints").exists() else []
+        steps = (
+            [d for d in os.listdir(run_dir / "checkpoints")]
+            if (run_dir / "checkpoints").exists()
+            else []
+        )
         if any(d.isdigit() for d in steps):
             break
         time.sleep(0.2)
-    assert proc.poll() is None, f"train.py ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+    assert proc.poll() is None, (
+        f"train.py ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+    )
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     killed_at = Checkpointer(str(run_dir)).latest_step()
     assert killed_at is not None and killed_at < 1000
-    out = subprocess.run([sys.executable, "train.py", "--resume", str(run_dir), "--quiet"], cwd=ROOT, env=env,
-                         capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=600)
+    out = subprocess.run(
+        [sys.executable, "train.py", "--resume", str(run_dir), "--quiet"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     assert f"resumed {run_dir} at env step {killed_at}" in out.stdout
-    resumed = train_loop.restore_run(str(run_dir), log=lambda *a: None)
+    resumed = restore_run(str(run_dir), log=lambda *a: None)
     assert int(resumed.state.env_steps) == 1000
     jax.tree.map(np.testing.assert_array_equal, _params(resumed.state), _params(finished_run.state))
     rows = open(run_dir / "metrics.csv").read().splitlines()
@@ -110,7 +142,7 @@ def test_corrupted_checkpoint_gives_clear_error(finished_run, tmp_path):
                 with open(path, "r+b") as fh:
                     fh.truncate(16)
     with pytest.raises(CheckpointError, match="corrupted|could not be restored"):
-        train_loop.restore_run(str(run_dir), log=lambda *a: None)
+        restore_run(str(run_dir), log=lambda *a: None)
 
 
 def test_checkpoint_for_another_space_is_refused(finished_run):
@@ -125,18 +157,26 @@ def test_checkpoint_for_another_space_is_refused(finished_run):
 
 def test_existing_run_dir_is_not_overwritten(finished_run):
     with pytest.raises(CheckpointError, match="--resume"):
-        train_loop.train(tiny_config(finished_run.run_dir), log=lambda *a: None)
+        train(tiny_config(finished_run.run_dir), log=lambda *a: None)
 
 
 def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
-    cfg = tiny_config(tmp_path / "nan", total_steps=800, checkpoint_every=200,
-                      off_policy=dataclasses.replace(TINY_OFF_POLICY, learning_starts=400),
-                      score=dataclasses.replace(TINY_SCORE, reward_scale=float("nan")))
-    with pytest.raises(train_loop.NonFiniteError, match="last good checkpoint"):
-        train_loop.train(cfg, log=lambda *a: None)
+    cfg = tiny_config(
+        tmp_path / "nan",
+        total_steps=800,
+        checkpoint_every=200,
+        off_policy=dataclasses.replace(TINY_OFF_POLICY, learning_starts=400),
+        score=dataclasses.replace(TINY_SCORE, reward_scale=float("nan")),
+    )
+    with pytest.raises(NonFiniteError, match="last good checkpoint"):
+        train(cfg, log=lambda *a: None)
     ckpt = Checkpointer(str(tmp_path / "nan"))
-    assert ckpt.latest_step() == 200  # updates start in the second epoch (at 400 steps); it went NaN
-    template = train_loop.build(cfg, jax.random.PRNGKey(0), str(tmp_path / "nan"), restoring=True, log=lambda *a: None).trainer.init(jax.random.PRNGKey(1))
+    assert (
+        ckpt.latest_step() == 200
+    )  # updates start in the second epoch (at 400 steps); it went NaN
+    template = build(
+        cfg, jax.random.PRNGKey(0), str(tmp_path / "nan"), restoring=True, log=lambda *a: None
+    ).trainer.init(jax.random.PRNGKey(1))
     state, _ = ckpt.restore(template)
     assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(jax.device_get(state.agent.actor)))
 
@@ -144,25 +184,34 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
 def test_training_time_failures_go_through_the_failure_function(finished_run):
     """With train_failures=1 each collected step has exactly one failed agent, whose stored action
     is what the environment received (its default) and which the critic masks out."""
-    from score_jax.trainer import Trainer
+    from score_jax.run.trainer import Trainer
 
-    cfg = dataclasses.replace(finished_run.config.off_policy, train_failures=1, train_failure_mode=0, learning_starts=10_000)
+    cfg = dataclasses.replace(
+        finished_run.config.off_policy,
+        train_failures=1,
+        train_failure_mode=0,
+        learning_starts=10_000,
+    )
     trainer = Trainer(finished_run.env, finished_run.algo.off_policy, cfg, finished_run.agent_index)
-    state, _ = trainer.epoch(trainer.init(jax.random.PRNGKey(3)), finished_run.algo.off_policy.hyper)
+    state, _ = trainer.epoch(
+        trainer.init(jax.random.PRNGKey(3)), finished_run.algo.off_policy.hyper
+    )
     n = int(state.buffer.size)
     active = np.asarray(state.buffer.data.active[:n])
     np.testing.assert_array_equal(active.sum(axis=1), 2)
     default = np.asarray(finished_run.env.space.default_action())
     actions = np.asarray(state.buffer.data.action[:n])
     failed_rows, failed_agents = np.nonzero(~active)
-    np.testing.assert_allclose(actions[failed_rows, failed_agents], default[failed_agents], atol=1e-6)
+    np.testing.assert_allclose(
+        actions[failed_rows, failed_agents], default[failed_agents], atol=1e-6
+    )
 
 
 def test_exploration_noise_is_held_for_hold_steps(finished_run):
     """exploration_hold=3: an env redraws its exploration key only when its episode step is a
     multiple of 3, and with a held key its stochastic action is a function of the observation
     alone (the noise does not change)."""
-    from score_jax.trainer import Trainer
+    from score_jax.run.trainer import Trainer
 
     cfg = dataclasses.replace(finished_run.config.off_policy, exploration_hold=3)
     trainer = Trainer(finished_run.env, finished_run.algo.off_policy, cfg, finished_run.agent_index)
@@ -177,7 +226,17 @@ def test_exploration_noise_is_held_for_hold_steps(finished_run):
     np.testing.assert_array_equal(np.all(np.asarray(k1) == np.asarray(k2), axis=1), ~redraw)
     same = np.all(np.asarray(a1) == np.asarray(a2), axis=(1, 2))
     np.testing.assert_array_equal(same, ~redraw)  # held keys: same actions; redrawn: new noise
-    one_step = Trainer(finished_run.env, finished_run.algo.off_policy, dataclasses.replace(cfg, exploration_hold=1), finished_run.agent_index)
+    one_step = Trainer(
+        finished_run.env,
+        finished_run.algo.off_policy,
+        dataclasses.replace(cfg, exploration_hold=1),
+        finished_run.agent_index,
+    )
     assert one_step.hold == 1 and trainer.hold == 3
     with pytest.raises(ValueError, match="exploration_hold"):
-        Trainer(finished_run.env, finished_run.algo.off_policy, dataclasses.replace(cfg, exploration_hold=-2), finished_run.agent_index)
+        Trainer(
+            finished_run.env,
+            finished_run.algo.off_policy,
+            dataclasses.replace(cfg, exploration_hold=-2),
+            finished_run.agent_index,
+        )

@@ -9,12 +9,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SHARDED_SCRIPT = r"""
 import dataclasses, jax, numpy as np
-from score_jax import train_loop
-from score_jax.trainer import Trainer, make_data_mesh
+from score_jax.run.build import build
+from score_jax.run.sharding import make_data_mesh
+from score_jax.run.trainer import Trainer
 from tests.tiny import tiny_config
 assert jax.device_count() == 2, jax.devices()
 cfg = tiny_config("/tmp/unused", total_steps=400)
-run = train_loop.build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None)
+run = build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None)
 single = Trainer(run.env, run.algo.off_policy, cfg.off_policy, run.agent_index)
 sharded = Trainer(run.env, run.algo.off_policy, cfg.off_policy, run.agent_index, make_data_mesh())
 a, b = single.init(jax.random.PRNGKey(1)), sharded.init(jax.random.PRNGKey(1))
@@ -27,17 +28,37 @@ np.testing.assert_allclose(a.env_state.obs, b.env_state.obs, rtol=1e-5, atol=1e-
 for x, y in zip(jax.tree.leaves(jax.device_get(a.agent)), jax.tree.leaves(jax.device_get(b.agent))):
     np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
 # the robustness sweep with its settings spread over both devices equals the one-device sweep
-from score_jax.robustness import make_sweep, settings_grid, shard_settings
+from score_jax.evaluation.robustness import make_sweep, settings_grid, shard_settings
 settings = settings_grid(len(run.agent_index), 2)
 sharded_settings = shard_settings(settings)
 assert len(sharded_settings.n_failed.sharding.device_set) == 2
-sweep = jax.jit(lambda agent, s, k: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(s, k))
-np.testing.assert_allclose(sweep(a.agent, settings, jax.random.PRNGKey(5)), sweep(a.agent, sharded_settings, jax.random.PRNGKey(5)), rtol=1e-5, atol=1e-5)
+sweep = jax.jit(
+    lambda agent, s, k: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(s, k)
+)
+np.testing.assert_allclose(
+    sweep(a.agent, settings, jax.random.PRNGKey(5)),
+    sweep(a.agent, sharded_settings, jax.random.PRNGKey(5)),
+    rtol=1e-5,
+    atol=1e-5,
+)
 print("SHARDED_OK", int(a.updates))
 """
 
 
 def test_sharded_epoch_equals_single_device():
-    env = {**os.environ, "PYTHONPATH": ROOT, "XLA_FLAGS": (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()}
-    out = subprocess.run([sys.executable, "-c", SHARDED_SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    env = {
+        **os.environ,
+        "PYTHONPATH": ROOT,
+        "XLA_FLAGS": (
+            os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+        ).strip(),
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", SHARDED_SCRIPT],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert "SHARDED_OK" in out.stdout, out.stderr[-3000:]

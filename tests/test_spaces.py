@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from score_jax.spaces import CompositeSpace, SubSpace
+from score_jax.core.spaces import CompositeSpace, SubSpace
 
 SPACE = CompositeSpace(
     (
@@ -21,7 +21,9 @@ def test_structure():
     np.testing.assert_array_equal(SPACE.dim_mask, [[1, 1, 1], [1, 1, 0], [1, 0, 0]])
     assert SPACE.max_choices == 24
     assert SPACE.names == ("temp", "hours", "leg")
-    assert hash(SPACE) == hash(CompositeSpace(SPACE.subspaces)) and SPACE == CompositeSpace(SPACE.subspaces)
+    assert hash(SPACE) == hash(CompositeSpace(SPACE.subspaces)) and SPACE == CompositeSpace(
+        SPACE.subspaces
+    )
 
 
 def test_round_trip_continuous_and_discrete():
@@ -40,7 +42,9 @@ def test_discrete_grid_maps_both_ways():
     phys = SPACE.to_physical(a)
     np.testing.assert_allclose(phys[:, 1, 0], idx, atol=1e-4)
     np.testing.assert_array_equal(SPACE.choice_index(a)[:, 1, 0], idx)
-    np.testing.assert_allclose(SPACE.choice_value(SPACE.choice_index(a))[:, 1, 0], a[:, 1, 0], atol=1e-6)
+    np.testing.assert_allclose(
+        SPACE.choice_value(SPACE.choice_index(a))[:, 1, 0], a[:, 1, 0], atol=1e-6
+    )
     # a value between two grid points snaps to the nearest hour
     mid = jnp.zeros((3, 3)).at[1, 0].set(-1 + 2 * 4.4 / 23)
     assert float(SPACE.to_physical(mid)[1, 0]) == pytest.approx(4.0, abs=1e-4)

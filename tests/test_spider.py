@@ -19,7 +19,14 @@ import envs
 from envs.base import CompositeEnv
 from envs.spider.env import SpiderConfig, make_spider
 from envs.spider.gait import gait_actions
-from envs.spider.legs import DEFAULT_LEG_NAMES, LEG_RADIUS, STANCE_HEIGHT, JointSpec, LegSpec, ant_leg
+from envs.spider.legs import (
+    DEFAULT_LEG_NAMES,
+    LEG_RADIUS,
+    STANCE_HEIGHT,
+    JointSpec,
+    LegSpec,
+    ant_leg,
+)
 from envs.spider.model import build_mj_model, spider_xml
 from envs.spider.rollout import make_rollout, mujoco_rollout, reset_batch
 
@@ -49,7 +56,9 @@ def long_rollout(env):
     sp = env.space
     b = N_RANDOM + N_GAIT + N_ZERO
     random = sp.sample(jax.random.PRNGKey(1), (T_LONG, N_RANDOM))
-    gait = jnp.broadcast_to(gait_actions(env.legs, sp, T_LONG, env.dt)[:, None], (T_LONG, N_GAIT, sp.n, sp.max_dim))
+    gait = jnp.broadcast_to(
+        gait_actions(env.legs, sp, T_LONG, env.dt)[:, None], (T_LONG, N_GAIT, sp.n, sp.max_dim)
+    )
     zero = jnp.zeros((T_LONG, N_ZERO, sp.n, sp.max_dim))
     actions = jnp.concatenate([random, gait, zero], axis=1)
     states = reset_batch(env, jax.random.PRNGKey(2), b)
@@ -63,9 +72,23 @@ def test_spec_matches_paper(env):
     assert isinstance(env, CompositeEnv)
     assert env.name == "spider" and env.episode_length == 1000 and env.config.frame_skip == 5
     assert sp.dims == (2, 2, 2, 2, 3, 3, 1, 1)
-    assert sp.names == ("leg_front_left", "leg_front_right", "leg_back_left", "leg_back_right", "leg_mid_left", "leg_mid_right", "leg_front", "leg_back")
+    assert sp.names == (
+        "leg_front_left",
+        "leg_front_right",
+        "leg_back_left",
+        "leg_back_right",
+        "leg_mid_left",
+        "leg_mid_right",
+        "leg_front",
+        "leg_back",
+    )
     for s in sp.subspaces:
-        assert s.kind == "continuous" and set(s.low) == {-1.0} and set(s.high) == {1.0} and set(s.default) == {0.0}
+        assert (
+            s.kind == "continuous"
+            and set(s.low) == {-1.0}
+            and set(s.high) == {1.0}
+            and set(s.default) == {0.0}
+        )
     assert env.mj_model.nu == sp.total_dim == 16
     # Ant observation without contact forces: qpos[2:] + qvel.
     assert env.observation_size == (env.mj_model.nq - 2) + env.mj_model.nv == 43
@@ -74,10 +97,17 @@ def test_spec_matches_paper(env):
 def test_legs_are_symmetric_in_four_directions():
     """§5.2.1: the two-pitch-joint legs and the rigid legs sit opposite each other on the axes."""
     legs = {leg.name: leg for leg in make_spider().legs}
-    assert [legs[n].angle_deg % 360 for n in ("mid_left", "mid_right", "front", "back")] == [90, 270, 0, 180]
+    assert [legs[n].angle_deg % 360 for n in ("mid_left", "mid_right", "front", "back")] == [
+        90,
+        270,
+        0,
+        180,
+    ]
     assert legs["mid_left"].segment_lengths == legs["mid_right"].segment_lengths
     assert legs["front"].segment_lengths == legs["back"].segment_lengths
-    ant = [legs[n].segment_lengths for n in ("front_left", "front_right", "back_left", "back_right")]
+    ant = [
+        legs[n].segment_lengths for n in ("front_left", "front_right", "back_left", "back_right")
+    ]
     assert len(set(ant)) == 4, "each Ant leg has its own length"
     # Every foot reaches the floor at the stance height.
     for leg in legs.values():
@@ -86,7 +116,11 @@ def test_legs_are_symmetric_in_four_directions():
 
 def test_only_feet_and_torso_collide_with_the_floor(env):
     m = env.mj_model
-    colliding = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]}
+    colliding = {
+        mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+        for g in range(m.ngeom)
+        if m.geom_contype[g] or m.geom_conaffinity[g]
+    }
     assert colliding == {"floor", "torso"} | {f"{n}_foot" for n in DEFAULT_LEG_NAMES}
 
 
@@ -111,7 +145,9 @@ def test_jit_vmap_step_64_envs(env, batched_step, states64):
     padded = batched_step(states64, actions + junk)
     np.testing.assert_array_equal(padded.sim.data.qpos, out.sim.data.qpos)
     clipped = batched_step(states64, jnp.clip(actions * 5.0, -1.0, 1.0))
-    np.testing.assert_array_equal(batched_step(states64, actions * 5.0).sim.data.qpos, clipped.sim.data.qpos)
+    np.testing.assert_array_equal(
+        batched_step(states64, actions * 5.0).sim.data.qpos, clipped.sim.data.qpos
+    )
 
 
 def test_reward_is_ant_style(env, batched_step, states64):
@@ -121,8 +157,12 @@ def test_reward_is_ant_style(env, batched_step, states64):
     ctrl = env.space.flatten(env.space.to_physical(actions))
     vx = (out.sim.data.qpos[:, 0] - states64.sim.data.qpos[:, 0]) / cfg.dt
     np.testing.assert_allclose(out.metrics.x_velocity, vx, rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(out.metrics.ctrl_cost, cfg.ctrl_cost_weight * jnp.sum(ctrl**2, -1), rtol=1e-5)
-    np.testing.assert_allclose(out.reward, vx + cfg.healthy_reward - out.metrics.ctrl_cost, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(
+        out.metrics.ctrl_cost, cfg.ctrl_cost_weight * jnp.sum(ctrl**2, -1), rtol=1e-5
+    )
+    np.testing.assert_allclose(
+        out.reward, vx + cfg.healthy_reward - out.metrics.ctrl_cost, rtol=1e-5, atol=1e-5
+    )
 
 
 def test_no_nan_over_1000_random_steps(long_rollout):
@@ -162,11 +202,17 @@ def test_fast_settings_do_not_change_impact_penetration(env):
     """Random torques (Ant's gear 150) slam feet into the floor at up to ~10 m/s, and one 0.01 s
     step then overshoots by centimetres. That is the soft-contact model at Ant's timestep, not
     the cheap solver: MuJoCo with 100 iterations penetrates just as deep."""
-    accurate = build_mj_model(env.legs, dataclasses.replace(env.config.physics, iterations=100, ls_iterations=50, eulerdamp=True))
+    accurate = build_mj_model(
+        env.legs,
+        dataclasses.replace(env.config.physics, iterations=100, ls_iterations=50, eulerdamp=True),
+    )
     seeds = range(16)
     fast = _random_episode_min_foot_z(env.mj_model, env.foot_geoms, seeds)
     acc = _random_episode_min_foot_z(accurate, env.foot_geoms, seeds)
-    assert abs(np.median(fast) - np.median(acc)) < 0.01 and abs(fast.min() - acc.min()) < 0.02, (fast, acc)
+    assert abs(np.median(fast) - np.median(acc)) < 0.01 and abs(fast.min() - acc.min()) < 0.02, (
+        fast,
+        acc,
+    )
 
 
 def test_termination_and_truncation(env, long_rollout):
@@ -190,7 +236,9 @@ def test_gait_walks_forward_further_than_zero_action(long_rollout):
     zero = dx[N_RANDOM + N_GAIT :]
     assert gait.min() > zero.max() + 0.5, (gait, zero)
     assert gait.mean() > 1.0, gait  # ~2-3 m in 10 s
-    assert (traj.done[:GAIT_STEPS, N_RANDOM : N_RANDOM + N_GAIT] == 0).all(), "the gait keeps the torso healthy"
+    assert (traj.done[:GAIT_STEPS, N_RANDOM : N_RANDOM + N_GAIT] == 0).all(), (
+        "the gait keeps the torso healthy"
+    )
 
 
 # --- agreement with plain MuJoCo -----------------------------------------------------------------
@@ -215,7 +263,13 @@ def test_mjx_matches_mujoco_on_the_same_model(env, batched_step, states64):
     q_mjx = _play(batched_step, states64, actions)
     ctrls = np.asarray(sp.flatten(sp.to_physical(actions)))
     for b in range(n_envs):
-        q_c = mujoco_rollout(env.mj_model, np.asarray(states64.sim.data.qpos[b]), np.asarray(states64.sim.data.qvel[b]), ctrls[:, b], env.config.frame_skip)
+        q_c = mujoco_rollout(
+            env.mj_model,
+            np.asarray(states64.sim.data.qpos[b]),
+            np.asarray(states64.sim.data.qvel[b]),
+            ctrls[:, b],
+            env.config.frame_skip,
+        )
         err = np.abs(q_c - q_mjx[:, b]).max(axis=1)
         assert err[0] < 2e-3 and err.max() < 2e-2, (b, err)
 
@@ -227,7 +281,10 @@ def test_fast_settings_agree_with_accurate_mujoco(env, long_rollout):
     stands at the same height after 1000 steps (within 1.5 cm; lying down would be 0.25 m
     lower), and the gait walks forward there too. Single trajectories are chaotic, so
     distances are not compared one to one."""
-    accurate = build_mj_model(env.legs, dataclasses.replace(env.config.physics, iterations=100, ls_iterations=50, eulerdamp=True))
+    accurate = build_mj_model(
+        env.legs,
+        dataclasses.replace(env.config.physics, iterations=100, ls_iterations=50, eulerdamp=True),
+    )
     initial, actions, _, traj = long_rollout
     ctrls = np.asarray(env.space.flatten(env.space.to_physical(actions)))
     gait_dx = []
@@ -242,7 +299,10 @@ def test_fast_settings_agree_with_accurate_mujoco(env, long_rollout):
     # Each gait trajectory is chaotic (one ulp in the controls moves it by tens of cm); the
     # walk itself is not: every one moves forward and on average well beyond standing still.
     gait_dx = np.asarray(gait_dx)
-    assert gait_dx.min() > 0.2 and gait_dx.mean() > 0.5, ("the gait also walks in accurate MuJoCo", gait_dx)
+    assert gait_dx.min() > 0.2 and gait_dx.mean() > 0.5, (
+        "the gait also walks in accurate MuJoCo",
+        gait_dx,
+    )
 
 
 # --- variants and errors -------------------------------------------------------------------------
@@ -260,7 +320,11 @@ def test_six_leg_body_runs_and_matches_subset_space(env):
 
 
 def test_custom_leg_table_builds():
-    legs = (ant_leg("a", 0.0, 0.2, 0.5), ant_leg("b", 120.0, 0.2, 0.5), ant_leg("c", 240.0, 0.3, 0.6))
+    legs = (
+        ant_leg("a", 0.0, 0.2, 0.5),
+        ant_leg("b", 120.0, 0.2, 0.5),
+        ant_leg("c", 240.0, 0.3, 0.6),
+    )
     env3 = make_spider(legs=legs, episode_length=10)
     assert env3.space.dims == (2, 2, 2) and env3.mj_model.nu == 6 and env3.episode_length == 10
     assert "c_ankle" in spider_xml(legs)
@@ -274,7 +338,13 @@ def test_bad_names_give_clear_errors():
     with pytest.raises(ValueError, match="at least one leg"):
         make_spider(legs=())
     with pytest.raises(ValueError, match="joints must be one 'hip'"):
-        LegSpec("x", 0.0, (0.3, 0.3), (0.0, 45.0), (JointSpec("knee", "pitch", (-1.0, 1.0)), JointSpec("hip", "hip", (-1.0, 1.0))))
+        LegSpec(
+            "x",
+            0.0,
+            (0.3, 0.3),
+            (0.0, 45.0),
+            (JointSpec("knee", "pitch", (-1.0, 1.0)), JointSpec("hip", "hip", (-1.0, 1.0))),
+        )
     with pytest.raises(ValueError, match="healthy_z_range"):
         SpiderConfig(healthy_z_range=(1.0, 0.2))
 

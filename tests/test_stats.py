@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from score_jax import stats
+from score_jax.evaluation import stats
 
 REPS = 2_000
 
@@ -112,8 +112,9 @@ def test_probability_of_improvement():
 def test_performance_profile_is_non_increasing():
     rng = np.random.default_rng(4)
     taus = np.linspace(-3.0, 3.0, 25)
-    out = stats.performance_profile({"a": rng.normal(size=10), "b": rng.normal(size=(5, 3))},
-                                    taus, reps=500)
+    out = stats.performance_profile(
+        {"a": rng.normal(size=10), "b": rng.normal(size=(5, 3))}, taus, reps=500
+    )
     for profile, (lo, hi) in out.values():
         assert profile.shape == lo.shape == hi.shape == taus.shape
         assert np.all(np.diff(profile) <= 0) and np.all(np.diff(lo) <= 0)
@@ -154,8 +155,9 @@ def test_plots_write_files(tmp_path):
     stats.plot_interval_estimates(aggs, path)
     taus = np.linspace(-2.0, 3.0, 11)
     profile_path = os.path.join(tmp_path, "profiles.png")
-    stats.plot_performance_profiles(stats.performance_profile(scores, taus, reps=200), taus,
-                                    profile_path)
+    stats.plot_performance_profiles(
+        stats.performance_profile(scores, taus, reps=200), taus, profile_path
+    )
     for p in (path, profile_path):
         with open(p, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"

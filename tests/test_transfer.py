@@ -8,30 +8,41 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from score_jax import train_loop
-from score_jax import transfer as tr
-from score_jax.checkpoint import CheckpointError
-from score_jax.replay import replay_sample
+from score_jax.agents import growth as tr
+from score_jax.agents.replay import replay_sample
+from score_jax.agents.score.transfer import embed_new, grow_agent
+from score_jax.evaluation.transfer import TransferArgs, run_transfer
+from score_jax.run.build import build, restore_run
+from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.config import TransferSpec
+from score_jax.run.driver import train
 from tests.tiny import tiny_config
-from transfer import TransferArgs, run_transfer
 
 
 @pytest.fixture(scope="module")
 def subset_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("transfer") / "subset"
-    train_loop.train(tiny_config(run_dir, subspaces="a,b", total_steps=600), log=lambda *a: None)
-    return train_loop.restore_run(str(run_dir), log=lambda *a: None)
+    train(tiny_config(run_dir, subspaces="a,b", total_steps=600), log=lambda *a: None)
+    return restore_run(str(run_dir), log=lambda *a: None)
 
 
 @pytest.fixture(scope="module")
 def grown(subset_run):
     """The grown run's structure and the grown algorithm state (before any fine-tuning)."""
     p = tr.plan(subset_run.agent_index, np.arange(3))
-    new_c = tr.embed_new(subset_run, subset_run.env, p, jax.random.PRNGKey(3))
-    cfg = dataclasses.replace(subset_run.config, subspaces="a,b,c", transfer_new="c")
-    run = train_loop.build(cfg, jax.random.PRNGKey(0), "/tmp/unused", restoring=True, log=lambda *a: None)
+    cfg = dataclasses.replace(subset_run.config, subspaces="a,b,c")
+    spec = TransferSpec(subset_run.run_dir, ("c",))
+    run = build(
+        cfg,
+        jax.random.PRNGKey(0),
+        "/tmp/unused",
+        restoring=True,
+        log=lambda *a: None,
+        transfer=spec,
+    )
+    new_c = embed_new(subset_run.state.agent, run.algo.networks, run.env, p, jax.random.PRNGKey(3))
     template = run.trainer.init(jax.random.PRNGKey(1)).agent
-    return run, p, tr.grow_agent(subset_run.state.agent, template, p, new_c, jax.random.PRNGKey(2))
+    return run, p, grow_agent(subset_run.state.agent, template, p, new_c, jax.random.PRNGKey(2))
 
 
 def test_plan_orders_agents_like_the_space(subset_run):
@@ -48,15 +59,23 @@ def test_grown_critic_with_new_agent_masked_equals_restored(subset_run, grown):
     run, p, agent = grown
     src_nets, src_agent = subset_run.algo.networks, subset_run.state.agent
     batch = replay_sample(subset_run.state.buffer, jax.random.PRNGKey(0), 32)
-    q_src = src_nets.q_fn(src_agent.critic, src_agent.consts, batch.obs, batch.action, jnp.ones((32, 2), bool))
-    junk = jax.random.uniform(jax.random.PRNGKey(5), (32, 1, batch.action.shape[-1]), minval=-1, maxval=1)
+    q_src = src_nets.q_fn(
+        src_agent.critic, src_agent.consts, batch.obs, batch.action, jnp.ones((32, 2), bool)
+    )
+    junk = jax.random.uniform(
+        jax.random.PRNGKey(5), (32, 1, batch.action.shape[-1]), minval=-1, maxval=1
+    )
     actions = jnp.concatenate([batch.action, junk], axis=1)  # agents a, b, c in the space's order
     mask = jnp.broadcast_to(jnp.array([True, True, False]), (32, 3))
     q_grown = run.algo.networks.q_fn(agent.critic, agent.consts, batch.obs, actions, mask)
     np.testing.assert_allclose(q_grown, q_src, rtol=1e-6, atol=1e-6)
     # the old agents keep their actors: same deterministic sub-actions as before
-    a_src = src_nets.policy_fn(src_agent.actor, src_agent.consts, batch.obs, jax.random.PRNGKey(0), True)[0]
-    a_new = run.algo.networks.policy_fn(agent.actor, agent.consts, batch.obs, jax.random.PRNGKey(0), True)[0]
+    a_src = src_nets.policy_fn(
+        src_agent.actor, src_agent.consts, batch.obs, jax.random.PRNGKey(0), True
+    )[0]
+    a_new = run.algo.networks.policy_fn(
+        agent.actor, agent.consts, batch.obs, jax.random.PRNGKey(0), True
+    )[0]
     np.testing.assert_array_equal(a_new[:, :2], a_src)
     # the new sub-space's code comes from the frozen HVAE and differs from the old ones
     c = agent.consts.critic_inputs.c
@@ -68,28 +87,54 @@ def test_frozen_parts_are_bitwise_unchanged_after_a_finetuning_step(subset_run, 
     run, p, agent = grown
     batch = replay_sample(subset_run.state.buffer, jax.random.PRNGKey(1), 64)
     junk = jnp.zeros((64, 1, batch.action.shape[-1]))
-    batch = batch.replace(action=jnp.concatenate([batch.action, junk], 1), active=jnp.ones((64, 3), bool))
-    new, _ = jax.jit(run.algo.off_policy.update)(agent, batch, jax.random.PRNGKey(0), run.algo.off_policy.hyper)
-    for old, upd in zip(jax.tree.leaves(agent.actor), jax.tree.leaves(new.actor)):
+    batch = batch.replace(
+        action=jnp.concatenate([batch.action, junk], 1), active=jnp.ones((64, 3), bool)
+    )
+    new, _ = jax.jit(run.algo.off_policy.update)(
+        agent, batch, jax.random.PRNGKey(0), run.algo.off_policy.hyper
+    )
+    for old, upd in zip(jax.tree.leaves(agent.actor), jax.tree.leaves(new.actor), strict=True):
         np.testing.assert_array_equal(np.asarray(upd)[:2], np.asarray(old)[:2])  # old actors frozen
-    assert any(not np.array_equal(np.asarray(u)[2], np.asarray(o)[2]) for o, u in zip(jax.tree.leaves(agent.actor), jax.tree.leaves(new.actor)))
-    jax.tree.map(np.testing.assert_array_equal, new.consts.critic_inputs, agent.consts.critic_inputs)  # HVAE and c_i frozen
-    assert any(not np.array_equal(a, b) for a, b in zip(jax.tree.leaves(agent.critic), jax.tree.leaves(new.critic)))  # p_w, GAT, f_xi train
+    assert any(
+        not np.array_equal(np.asarray(u)[2], np.asarray(o)[2])
+        for o, u in zip(jax.tree.leaves(agent.actor), jax.tree.leaves(new.actor), strict=True)
+    )
+    jax.tree.map(
+        np.testing.assert_array_equal, new.consts.critic_inputs, agent.consts.critic_inputs
+    )  # HVAE and c_i frozen
+    assert any(
+        not np.array_equal(a, b)
+        for a, b in zip(jax.tree.leaves(agent.critic), jax.tree.leaves(new.critic), strict=True)
+    )  # p_w, GAT, f_xi train
 
 
 def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path):
     out = tmp_path / "grown"
-    result = run_transfer(TransferArgs(checkpoint=subset_run.run_dir, total_steps=400, run_dir=str(out), quiet=True, eval_episodes=4), log=lambda *a: None)
+    result = run_transfer(
+        TransferArgs(
+            checkpoint=subset_run.run_dir,
+            total_steps=400,
+            run_dir=str(out),
+            quiet=True,
+            eval_episodes=4,
+        ),
+        log=lambda *a: None,
+    )
     assert result["new_subspaces"] == ["c"]
     assert np.isfinite(result["initial"]["mean"]) and np.isfinite(result["converge"]["mean"])
     saved = json.load(open(out / "transfer.json"))
     assert saved["initial"] == result["initial"]
     assert (out / "transfer.png").stat().st_size > 10_000
     # the fine-tuned run is an ordinary run over all sub-spaces: it restores and evaluates
-    restored = train_loop.restore_run(str(out), log=lambda *a: None)
+    restored = restore_run(str(out), log=lambda *a: None)
     assert list(restored.agent_index) == [0, 1, 2] and int(restored.state.env_steps) == 400
 
 
 def test_checkpoint_from_another_env_is_refused(subset_run, tmp_path):
     with pytest.raises(CheckpointError, match="trained on env 'probe', not 'greenhouse'"):
-        run_transfer(TransferArgs(checkpoint=subset_run.run_dir, env="greenhouse", run_dir=str(tmp_path / "x")), log=lambda *a: None)
+        run_transfer(
+            TransferArgs(
+                checkpoint=subset_run.run_dir, env="greenhouse", run_dir=str(tmp_path / "x")
+            ),
+            log=lambda *a: None,
+        )

@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from score_jax import writers
-from score_jax.writers import CsvWriter, MultiWriter, make_writers, read_csv
+from score_jax.run import writers
+from score_jax.run.writers import CsvWriter, MultiWriter, make_writers, read_csv
 
 HAS_WANDB = importlib.util.find_spec("wandb") is not None
 
@@ -25,8 +25,10 @@ def _nan_equal(a: float, b: float) -> bool:
 
 def test_csv_round_trip_with_seed_column(tmp_path):
     path = os.path.join(tmp_path, "run", "metrics.csv")
-    rows = [(0, {"episode_return": 1.5, "loss": float("nan"), "updates": 3}),
-            (100, {"episode_return": -2.25, "loss": 0.125, "updates": np.int64(7)})]
+    rows = [
+        (0, {"episode_return": 1.5, "loss": float("nan"), "updates": 3}),
+        (100, {"episode_return": -2.25, "loss": 0.125, "updates": np.int64(7)}),
+    ]
     with CsvWriter(path) as w:
         for step, m in rows:
             w.write(step, m, seed=4)
@@ -36,7 +38,7 @@ def test_csv_round_trip_with_seed_column(tmp_path):
     assert lines[1] == "0,4,1.5,nan,3"
     back = read_csv(path)
     assert [r["env_steps"] for r in back] == [0, 100] and {r["seed"] for r in back} == {4}
-    for (_, m), r in zip(rows, back):
+    for (_, m), r in zip(rows, back, strict=True):
         assert all(_nan_equal(float(v), r[k]) for k, v in m.items())
 
 
@@ -86,12 +88,12 @@ def _read_tfrecords(path: str) -> list[bytes]:
         data = f.read()
     pos = 0
     while pos < len(data):
-        header = data[pos:pos + 8]
+        header = data[pos : pos + 8]
         (length,) = struct.unpack("<Q", header)
-        (crc,) = struct.unpack("<I", data[pos + 8:pos + 12])
+        (crc,) = struct.unpack("<I", data[pos + 8 : pos + 12])
         assert crc == masked_crc32c(header)
-        body = data[pos + 12:pos + 12 + length]
-        (crc,) = struct.unpack("<I", data[pos + 12 + length:pos + 16 + length])
+        body = data[pos + 12 : pos + 12 + length]
+        (crc,) = struct.unpack("<I", data[pos + 12 + length : pos + 16 + length])
         assert crc == masked_crc32c(body)
         out.append(body)
         pos += 16 + length
@@ -151,10 +153,10 @@ def _wandb_history(path: str) -> list[dict[str, float]]:
         if block - pos % block < 7:  # block trailer padding
             pos += block - pos % block
             continue
-        length, kind = int.from_bytes(data[pos + 4:pos + 6], "little"), data[pos + 6]
+        length, kind = int.from_bytes(data[pos + 4 : pos + 6], "little"), data[pos + 6]
         if pos + 7 + length > len(data):  # still being written
             break
-        body, pos = data[pos + 7:pos + 7 + length], pos + 7 + length
+        body, pos = data[pos + 7 : pos + 7 + length], pos + 7 + length
         if kind == 1:
             chunks.append(body)
         elif kind in (2, 3):

@@ -32,7 +32,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from score_jax.spaces import CompositeSpace, SubSpace
+from score_jax.core.spaces import CompositeSpace, SubSpace
 
 SUBSPACE_NAMES = ("temperature", "co2", "lighting", "irrigation")
 LIGHTING_DEFAULT = (6.0, 18.0)
@@ -72,7 +72,9 @@ def on_fraction(start: jax.Array, end: jax.Array, substeps_per_hour: int) -> jax
     return jnp.where(end > start, inside(start, end), jnp.where(end < start, wrapped, 0.0))
 
 
-def decode_action(space: CompositeSpace, action: jax.Array, substeps_per_hour: int) -> dict[str, jax.Array]:
+def decode_action(
+    space: CompositeSpace, action: jax.Array, substeps_per_hour: int
+) -> dict[str, jax.Array]:
     """Normalised ``[n, max_dim]`` action -> physical hourly schedules.
 
     ``space.to_physical`` clips out-of-range values, turns NaN into the default and snaps

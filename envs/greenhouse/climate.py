@@ -10,10 +10,10 @@ optimal control problem in greenhouse climate management", Biosystems Engineerin
   h dH/dt       = transpiration - (leak + vent) (H - H_out) - g_cond (H - H_sat(T_cover))^+
 
 with s < 1 while the energy screen is drawn, T in °C, C in ppm, H the absolute humidity in
-kg/m³, ``leak``/``vent`` volume fluxes in m³ air per m² floor per s. Parameters follow Van Henten (2003) where his lettuce house fits a
-Venlo tomato house (heat capacity 30 kJ m^-2 K^-1, air heat capacity 1290 J m^-3 K^-1, mean
-height 4.1 m, sensible solar fraction 0.2); the others are typical glasshouse values, cited
-per field.
+kg/m³, ``leak``/``vent`` volume fluxes in m³ air per m² floor per s. Parameters follow Van
+Henten (2003) where his lettuce house fits a Venlo tomato house (heat capacity 30 kJ m^-2 K^-1,
+air heat capacity 1290 J m^-3 K^-1, mean height 4.1 m, sensible solar fraction 0.2); the
+others are typical glasshouse values, cited per field.
 
 Controllers (what a climate computer does with the hourly setpoints):
 - heating: the heat that brings T to the heating setpoint by the end of the sub-step,
@@ -52,15 +52,23 @@ CO2_FLOOR = 50.0  # ppm: photosynthesis stops near the CO2 compensation point
 class ClimateParams:
     """Greenhouse physics and equipment (a pytree: vmap or swap it)."""
 
-    transmission: float = 0.70  # fraction of outdoor global radiation reaching the crop (glass + structure)
-    par_per_joule: float = 2.1  # µmol PAR per J of global radiation (0.46 PAR fraction x 4.57 µmol/J)
-    solar_heat: float = 0.2  # c_rad,q,gh (Van Henten 2003): sensible heat per W of outdoor radiation
+    transmission: float = (
+        0.70  # fraction of outdoor global radiation reaching the crop (glass + structure)
+    )
+    par_per_joule: float = (
+        2.1  # µmol PAR per J of global radiation (0.46 PAR fraction x 4.57 µmol/J)
+    )
+    solar_heat: float = (
+        0.2  # c_rad,q,gh (Van Henten 2003): sensible heat per W of outdoor radiation
+    )
     heat_capacity: float = 3.0e4  # c_cap,q (Van Henten 2003), J m^-2 K^-1
     air_heat_capacity: float = 1290.0  # c_cap,q,v (Van Henten 2003), J m^-3 K^-1
     height: float = 4.1  # c_cap,c = c_cap,h (Van Henten 2003), m: air volume per floor area
     u_cover: float = 4.5  # W m^-2 K^-1, convective/conductive loss through single glass, still air
     u_cover_wind: float = 0.45  # extra W m^-2 K^-1 per m/s of wind
-    u_sky: float = 1.2  # W m^-2 K^-1, long-wave loss to the sky (U_cover + U_sky ~ Van Henten's 6.1)
+    u_sky: float = (
+        1.2  # W m^-2 K^-1, long-wave loss to the sky (U_cover + U_sky ~ Van Henten's 6.1)
+    )
     leakage: float = 2.0e-4  # m/s (~0.2 air changes per hour at 4.1 m)
     leakage_wind: float = 1.0e-4  # extra m/s per m/s of wind
     vent_max: float = 0.03  # m/s, fully open vents (~26 air changes per hour)
@@ -69,7 +77,9 @@ class ClimateParams:
     # W/m² of floor, heating capacity (pipe rail + growing pipe): cover losses of ~6-7 W m^-2 K^-1
     # at a 35 K design difference, times a cover/floor area ratio of ~1.3.
     heat_max: float = 300.0
-    screen_saving: float = 0.35  # fraction of cover + sky losses an energy screen saves (typically 0.25-0.45)
+    screen_saving: float = (
+        0.35  # fraction of cover + sky losses an energy screen saves (typically 0.25-0.45)
+    )
     screen_temp: float = 12.0  # °C: the screen is drawn on dark hours colder than this outside
     co2_out: float = 410.0  # ppm, outdoor CO2
     co2_max: float = 5.0e-6  # kg m^-2 s^-1, CO2 dosing capacity (180 kg/ha/h, pure CO2)
@@ -77,7 +87,9 @@ class ClimateParams:
     lamp_efficacy: float = 1.8  # µmol PAR per J electric (modern HPS)
     lamp_heat: float = 0.6  # fraction of lamp power that heats the air directly
     lamp_radiation: float = 0.4  # fraction reaching the canopy as radiation (drives transpiration)
-    cover_weight: float = 0.4  # cover temperature = T_out + cover_weight (T - T_out), for condensation
+    cover_weight: float = (
+        0.4  # cover temperature = T_out + cover_weight (T - T_out), for condensation
+    )
     condensation: float = 3.0e-3  # m/s, vapour transfer coefficient to a cold cover
 
 
@@ -108,7 +120,11 @@ def relative_humidity(vapour: jax.Array, temp: jax.Array) -> jax.Array:
 def initial_climate(temp: jax.Array, co2: jax.Array, rh: jax.Array) -> ClimateState:
     """Indoor air at ``temp`` °C, ``co2`` ppm and ``rh`` % relative humidity."""
     temp = jnp.asarray(temp, jnp.float32)
-    return ClimateState(temp, jnp.asarray(co2, jnp.float32), vapour_density(saturation_pressure(temp) * rh / 100.0, temp))
+    return ClimateState(
+        temp,
+        jnp.asarray(co2, jnp.float32),
+        vapour_density(saturation_pressure(temp) * rh / 100.0, temp),
+    )
 
 
 @struct.dataclass
@@ -215,7 +231,11 @@ def climate_substep(
     # g/m³), and temperature has priority: it may only use spare heating capacity.
     h_max = p.rh_max / 100.0 * vapour_density(saturation_pressure(s.temp), s.temp)
     dry_margin = h_max - vapour_out
-    vent_h = jnp.where(dry_margin > 1e-3, jnp.clip(transpiration / jnp.maximum(dry_margin, 1e-3) - leak, 0.0, p.vent_max), 0.0)
+    vent_h = jnp.where(
+        dry_margin > 1e-3,
+        jnp.clip(transpiration / jnp.maximum(dry_margin, 1e-3) - leak, 0.0, p.vent_max),
+        0.0,
+    )
     demand_closed = heat_demand(0.0)[0]
     spare = jnp.maximum(p.heat_max - jnp.maximum(demand_closed, 0.0), 0.0)
     vent_h = jnp.minimum(vent_h, spare / (c_air * jnp.maximum(temp_sp - temp_out, 1.0)))
@@ -238,7 +258,9 @@ def climate_substep(
     exchange = (leak + vent) / p.height
     e_co2 = jnp.exp(-exchange * dt)
     c_eq_needed = (co2_sp - s.co2 * e_co2) / (1.0 - e_co2)
-    dose = jnp.clip(KAPPA_CO2 * p.height * exchange * (c_eq_needed - p.co2_out) + uptake, 0.0, p.co2_max)
+    dose = jnp.clip(
+        KAPPA_CO2 * p.height * exchange * (c_eq_needed - p.co2_out) + uptake, 0.0, p.co2_max
+    )
     c_eq = p.co2_out + (dose - uptake) / (KAPPA_CO2 * p.height * exchange)
     co2 = jnp.maximum(c_eq + (s.co2 - c_eq) * e_co2, CO2_FLOOR)
 

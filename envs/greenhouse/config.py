@@ -66,7 +66,9 @@ class GreenhouseConfig:
         if self.reward not in REWARD_KINDS:
             raise ValueError(f"reward must be one of {list(REWARD_KINDS)}, got {self.reward!r}")
         if self.weather_format not in ("auto", "epw", "tmy3"):
-            raise ValueError(f"weather_format must be 'auto', 'epw' or 'tmy3', got {self.weather_format!r}")
+            raise ValueError(
+                f"weather_format must be 'auto', 'epw' or 'tmy3', got {self.weather_format!r}"
+            )
         if not 1 <= self.season_days <= 365:
             raise ValueError(f"season_days must be in 1..365, got {self.season_days}")
         if not 1 <= self.start_day_of_year <= 365:

@@ -17,12 +17,14 @@ Equations (numbers = Jones et al. 1999):
   (1)  dN/dt   = N_m f_N(T)
   (2)  dLAI/dt = rho delta lambda(T) exp(beta(N-N_b)) / (1 + exp(beta(N-N_b))) dN/dt,  LAI < LAI_max
   (5)  GR_net  = E (P_g - R_m) (1 - f_R(N))
-       P_g     = D/K L_fmax PGRED(T) ln{[(1-m) L_fmax + Q_e K PPFD] / [(1-m) L_fmax + Q_e K PPFD e^{-K LAI}]}
+       P_g     = D/K L_fmax PGRED(T)
+                 ln{[(1-m) L_fmax + Q_e K PPFD] / [(1-m) L_fmax + Q_e K PPFD e^{-K LAI}]}
                  (Acock et al. 1978 canopy integral), L_fmax = tau C
   (6)  R_m     = Q10^((T-20)/10) r_m (W - W_m)
   (7)  dW_f/dt = GR_net alpha_F f_F(T) (1 - e^{-nu (N - N_FF)}) g(T_daytime),  N > N_FF
   (8)  g(T_d)  = 1 - 0.154 (T_daytime - T_crit)   (clipped to [0, 1])
-  (9-10) dW/dt = min(GR_net - p1 rho dN/dt,  dW_f/dt + (V_max - p1) rho dN/dt),  p1 = 0 while LAI < LAI_max
+  (9-10) dW/dt = min(GR_net - p1 rho dN/dt,  dW_f/dt + (V_max - p1) rho dN/dt),
+                 p1 = 0 while LAI < LAI_max
   (11) dW_m/dt = D_F(T) (W_f - W_m),  N > N_FF + K_F
 
 Our additions (documented deviations):
@@ -94,7 +96,9 @@ class CropParams:
     t_min_fruit: float = 4.0
     photoperiod_max: float = 17.0  # h of light per day tolerated without injury
     photoperiod_injury: float = 0.05  # photosynthesis lost per hour of light beyond that
-    dry_matter_content: float = 0.055  # g dry / g fresh fruit (round tomato; Heuvelink 2005: 0.05-0.07)
+    dry_matter_content: float = (
+        0.055  # g dry / g fresh fruit (round tomato; Heuvelink 2005: 0.05-0.07)
+    )
     fruit_mass: float = 100.0  # g fresh per fruit (round truss tomato)
     # Initial state at transplanting (late December): young plants with ~6 nodes.
     n0: float = 10.0
@@ -117,7 +121,9 @@ def initial_crop(p: CropParams) -> CropState:
     n0 = jnp.asarray(p.n0, jnp.float32)
     lai0 = p.plant_density * p.delta / p.beta * jnp.log1p(jnp.exp(p.beta * (n0 - p.n_b)))
     zero = jnp.zeros((), jnp.float32)
-    return CropState(n=n0, lai=jnp.asarray(lai0, jnp.float32), w=jnp.asarray(p.w0, jnp.float32), wf=zero, wm=zero)
+    return CropState(
+        n=n0, lai=jnp.asarray(lai0, jnp.float32), w=jnp.asarray(p.w0, jnp.float32), wf=zero, wm=zero
+    )
 
 
 # --- temperature responses (vectorised, cheap: clipped ramps instead of table look-ups) -------
@@ -147,7 +153,9 @@ def leaf_max_photosynthesis(co2: jax.Array, p: CropParams) -> jax.Array:
     return p.tau1 * jnp.minimum(co2, 350.0) + p.tau2 * jnp.maximum(co2 - 350.0, 0.0)
 
 
-def gross_photosynthesis(par: jax.Array, co2: jax.Array, temp: jax.Array, lai: jax.Array, p: CropParams) -> jax.Array:
+def gross_photosynthesis(
+    par: jax.Array, co2: jax.Array, temp: jax.Array, lai: jax.Array, p: CropParams
+) -> jax.Array:
     """Canopy gross photosynthesis (Acock et al. 1978; Jones 1999 eq. 5), µmol CO2 m^-2 s^-1.
 
     Args (broadcastable): ``par`` PPFD at the canopy top, µmol m^-2 s^-1; ``co2`` ppm;

@@ -30,16 +30,24 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from envs.base import EnvState, build_config
+from envs.base import CompositeEnv, EnvHints, EnvState, ReferencePolicy, build_config
 from envs.greenhouse.actions import decode_action, greenhouse_space
 from envs.greenhouse.climate import ClimateParams, ClimateState, initial_climate
 from envs.greenhouse.config import GreenhouseConfig
-from envs.greenhouse.crop import CropParams, CropState, crop_update, fresh_yield_kg, fruit_number, initial_crop
+from envs.greenhouse.crop import (
+    CropParams,
+    CropState,
+    crop_update,
+    fresh_yield_kg,
+    fruit_number,
+    initial_crop,
+)
+from envs.greenhouse.expert import expert_action
 from envs.greenhouse.observation import OBSERVATION_SIZE, build_observation
 from envs.greenhouse.simulate import simulate_day
 from envs.greenhouse.water import WaterParams
 from envs.greenhouse.weather import Weather, load_weather
-from score_jax.spaces import CompositeSpace
+from score_jax.core.spaces import CompositeSpace
 
 
 @struct.dataclass
@@ -97,13 +105,13 @@ class GreenhouseMetrics:
     gross_photosynthesis: jax.Array
 
     @classmethod
-    def zeros(cls) -> "GreenhouseMetrics":
+    def zeros(cls) -> GreenhouseMetrics:
         z = jnp.zeros((), jnp.float32)
         return cls(**{f.name: z for f in dataclasses.fields(cls)})
 
 
 @struct.dataclass
-class GreenhouseEnv:
+class GreenhouseEnv(CompositeEnv):
     """Greenhouse tomato season as a ``CompositeEnv`` (see module doc).
 
     Static: ``config`` (``GreenhouseConfig``), ``space`` (Table 1, 52 dims).
@@ -139,21 +147,20 @@ class GreenhouseEnv:
         return self.config.season_days
 
     @property
-    def reward_scale(self) -> float:
-        """Suggested learner reward scale: the paper's cumulative reward reaches ~25 per day
-        (returns ~1000), so it is scaled to keep Q-values near 100; other modes are ~1 per day."""
-        return 0.05 if self.config.reward == "cumulative" else 1.0
+    def hints(self) -> EnvHints:
+        """The learners' reward scale: the paper's cumulative reward reaches ~25 per day (returns
+        ~1000), so it is scaled to keep Q-values near 100; other modes are ~1 per day. Decisions
+        are held 8 days: the crop and the slab integrate actions over days, so one day's
+        sub-action barely moves a season. Presets: a budget that finishes on a laptop CPU."""
+        scale = 0.05 if self.config.reward == "cumulative" else 1.0
+        return EnvHints(reward_scale=scale, action_repeat=8, total_steps=144_000, eval_every=16_000)
 
-    @property
-    def action_repeat(self) -> int:
-        """Suggested days a learner's decision is held (``TrainConfig.action_repeat``): the crop and
-        the slab integrate actions over days, so one day's sub-action barely moves a season."""
-        return 8
+    def reference_policies(self) -> dict[str, ReferencePolicy]:
+        """The documented grower heuristic (``envs.greenhouse.expert``)."""
+        return {"expert": lambda state: expert_action(self, state)}
 
     def expert_action(self, state: EnvState) -> jax.Array:
-        """The documented grower heuristic (``envs.greenhouse.expert``): the reference policy."""
-        from envs.greenhouse.expert import expert_action
-
+        """The grower heuristic for ``state`` (``envs.greenhouse.expert.expert_action``)."""
         return expert_action(self, state)
 
     # --- helpers --------------------------------------------------------------------------
@@ -192,14 +199,33 @@ class GreenhouseEnv:
         theta = jnp.asarray(wp.capacity, jnp.float32)
         before = self.weather.day(start - 1)
         ones = jnp.ones((24,), jnp.float32)
-        indoor = jnp.stack([19.0 * ones, 80.0 * ones, kp.co2_out * ones, before.ghi * kp.transmission * kp.par_per_joule])
+        indoor = jnp.stack(
+            [
+                19.0 * ones,
+                80.0 * ones,
+                kp.co2_out * ones,
+                before.ghi * kp.transmission * kp.par_per_joule,
+            ]
+        )
         sim = GreenhouseSim(start, jnp.zeros((), jnp.int32), climate, theta, crop, zero, zero)
-        obs = build_observation(indoor, self.weather.day(start), self._crop_obs(0, crop, zero, zero))
-        return EnvState(sim=sim, obs=obs, reward=zero, done=zero, truncated=zero, t=jnp.zeros((), jnp.int32), metrics=GreenhouseMetrics.zeros())
+        obs = build_observation(
+            indoor, self.weather.day(start), self._crop_obs(0, crop, zero, zero)
+        )
+        return EnvState(
+            sim=sim,
+            obs=obs,
+            reward=zero,
+            done=zero,
+            truncated=zero,
+            t=jnp.zeros((), jnp.int32),
+            metrics=GreenhouseMetrics.zeros(),
+        )
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Simulate one day under ``action`` (normalised ``[4, 24]``, see ``actions.py``)."""
-        return self.step_schedule(state, decode_action(self.space, action, self.config.substeps_per_hour))
+        return self.step_schedule(
+            state, decode_action(self.space, action, self.config.substeps_per_hour)
+        )
 
     def step_schedule(self, state: EnvState, schedule: dict[str, jax.Array]) -> EnvState:
         """Simulate one day under an already decoded hourly schedule.
@@ -213,7 +239,17 @@ class GreenhouseEnv:
         cfg, cp, kp = self.config, self.crop_params, self.climate_params
         sim: GreenhouseSim = state.sim
         today = self.weather.day(sim.start_doy + sim.day)
-        res = simulate_day(sim.climate, sim.theta, sim.crop, today, schedule, cp, kp, self.water_params, cfg.substeps_per_hour)
+        res = simulate_day(
+            sim.climate,
+            sim.theta,
+            sim.crop,
+            today,
+            schedule,
+            cp,
+            kp,
+            self.water_params,
+            cfg.substeps_per_hour,
+        )
         crop = crop_update(sim.crop, res.crop_day, cp)
 
         cumulative = fresh_yield_kg(crop.wm, cp)
@@ -229,8 +265,14 @@ class GreenhouseEnv:
         day = sim.day + 1
         t = state.t + 1
         done = (t >= cfg.season_days).astype(jnp.float32)
-        new_sim = GreenhouseSim(sim.start_doy, day, res.climate, res.theta, crop, res.irrigation_l, res.drainage_l)
-        obs = build_observation(res.indoor, self.weather.day(sim.start_doy + day), self._crop_obs(day, crop, res.irrigation_l, res.drainage_l))
+        new_sim = GreenhouseSim(
+            sim.start_doy, day, res.climate, res.theta, crop, res.irrigation_l, res.drainage_l
+        )
+        obs = build_observation(
+            res.indoor,
+            self.weather.day(sim.start_doy + day),
+            self._crop_obs(day, crop, res.irrigation_l, res.drainage_l),
+        )
         metrics = GreenhouseMetrics(
             daily_yield=daily_yield,
             cumulative_yield=cumulative,
@@ -265,7 +307,7 @@ class GreenhouseEnv:
 
 @functools.lru_cache(maxsize=8)
 def _cached_weather(path: str | None, fmt: str) -> Weather:
-    # Parsing a weather file takes ~0.1 s; environments built from the same file share it.
+    # Environments built from the same weather file share one parsed copy.
     return load_weather(path, fmt)
 
 
@@ -293,7 +335,10 @@ def make_greenhouse(
         weather = _cached_weather(config.weather_path, config.weather_format)
     for name in ("ghi", "temp_air", "rh", "wind", "temp_sky"):
         if np.shape(getattr(weather, name)) != (365, 24):
-            raise ValueError(f"weather.{name} must have shape (365, 24) (day of year, hour), got {np.shape(getattr(weather, name))}")
+            raise ValueError(
+                f"weather.{name} must have shape (365, 24) (day of year, hour), "
+                f"got {np.shape(getattr(weather, name))}"
+            )
     return GreenhouseEnv(
         weather=weather,
         crop_params=CropParams() if crop_params is None else crop_params,

@@ -2,21 +2,21 @@
 
 Layout (in this order):
 
-==========  ====  ===============================================================  ==============
-block       size  content                                                          physical range
-==========  ====  ===============================================================  ==============
-indoor      96    previous simulated day, 24 hourly values each of: air            see INDOOR_RANGES
+==========  ====  =============================================================  ==============
+block       size  content                                                        physical range
+==========  ====  =============================================================  ==============
+indoor      96    previous simulated day, 24 hourly values each of: air          see INDOOR_RANGES
                   temperature, relative humidity, CO2, PAR at the canopy
-outdoor     120   current simulated day (the day the action will act on), 24       see OUTDOOR_RANGES
+outdoor     120   current simulated day (the day the action will act on), 24     see OUTDOOR_RANGES
                   hourly values each of: global radiation, air temperature,
                   relative humidity, wind speed, sky ("virtual atmospheric")
                   temperature
-crop        9     days planted, watering volume (last day), drainage volume        see CROP_RANGES
+crop        9     days planted, watering volume (last day), drainage volume      see CROP_RANGES
                   (last day), LAI, plant dry weight (living above-ground,
                   W - W_m), node number (branches and leaves), cumulative fruit
                   fresh weight, cumulative fruit dry weight, cumulative fruit
                   number
-==========  ====  ===============================================================  ==============
+==========  ====  =============================================================  ==============
 
 Why 225 and not the paper's 223: Table 1 itemises 4 x 24 + 5 x 24 hourly values and nine crop
 quantities, which is 225; the paper's total of 223 does not say which two it leaves out, so we
@@ -75,7 +75,15 @@ def _bounds(ranges, repeat: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-_LO, _HI = (np.concatenate(x) for x in zip(_bounds(INDOOR_RANGES, 24), _bounds(OUTDOOR_RANGES, 24), _bounds(CROP_RANGES, 1)))
+_LO, _HI = (
+    np.concatenate(x)
+    for x in zip(
+        _bounds(INDOOR_RANGES, 24),
+        _bounds(OUTDOOR_RANGES, 24),
+        _bounds(CROP_RANGES, 1),
+        strict=True,
+    )
+)
 
 
 def normalise(x: jax.Array) -> jax.Array:
@@ -89,7 +97,16 @@ def denormalise(obs: jax.Array) -> jax.Array:
 
 
 def build_observation(indoor: jax.Array, next_weather: Weather, crop: jax.Array) -> jax.Array:
-    """``indoor [4, 24]`` (last day), ``next_weather`` (fields ``[24]``), ``crop [9]`` -> ``[225]``."""
-    outdoor = jnp.stack([next_weather.ghi, next_weather.temp_air, next_weather.rh, next_weather.wind, next_weather.temp_sky])
+    """``indoor [4, 24]`` (last day), ``next_weather`` (fields ``[24]``), ``crop [9]`` ->
+    ``[225]``."""
+    outdoor = jnp.stack(
+        [
+            next_weather.ghi,
+            next_weather.temp_air,
+            next_weather.rh,
+            next_weather.wind,
+            next_weather.temp_sky,
+        ]
+    )
     x = jnp.concatenate([indoor.reshape(-1), outdoor.reshape(-1), crop])
     return normalise(x.astype(jnp.float32))

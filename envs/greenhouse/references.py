@@ -27,7 +27,7 @@ simulator itself achieves:
   code, so an end-of-run report pays the search once per environment and code version.
 
 Pure JAX (with optax for Adam); of the project it imports only ``envs.greenhouse`` and
-``score_jax.spaces``, so neither MuJoCo nor brax is loaded.
+``score_jax.core.spaces``, so neither MuJoCo nor brax is loaded.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from flax import struct
 
 from envs.greenhouse.env import GreenhouseEnv
 from envs.greenhouse.season import FIRST_HARVEST_KG, SeasonTrace
-from score_jax.spaces import CompositeSpace
+from score_jax.core.spaces import CompositeSpace
 
 HOURS = ("lighting", "irrigation")  # the two timer sub-spaces, (start, end) hours each
 CONTINUOUS_ROWS = ("temperature", "co2")  # the two hourly setpoint sub-spaces
@@ -63,6 +63,7 @@ def _season(env: GreenhouseEnv, schedule: jax.Array, key: jax.Array):
     days = env.episode_length
     state = env.reset(key)
     if schedule.ndim == 2:
+
         def day(state, _):
             state = env.step(state, schedule)
             return state, (state.metrics, state.reward)
@@ -409,7 +410,7 @@ def relaxed_schedule(
     ``env.step_schedule`` reads: ``temp_sp [24]``, ``co2_sp [24]``, ``lamp [24, S]``,
     ``irrigation [24, S]``."""
     out = {}
-    for j, (name, key) in enumerate(zip(CONTINUOUS_ROWS, ("temp_sp", "co2_sp"))):
+    for j, (name, key) in enumerate(zip(CONTINUOUS_ROWS, ("temp_sp", "co2_sp"), strict=True)):
         r = space.index(name)
         lo, hi = space.low[r, :24], space.high[r, :24]
         out[key] = lo + (jnp.tanh(p.setpoints[j]) + 1.0) * 0.5 * (hi - lo)
@@ -574,8 +575,14 @@ def best_open_loop_schedule(
     snaps, history, finite = [], [], []
     for _ in range(snapshots):
         params, opt_state, values, ok = _ascent_chunk_jit(
-            env, params, opt_state, key_reset, width,
-            n_steps=chunk, hold_days=hold_days, learning_rate=learning_rate,
+            env,
+            params,
+            opt_state,
+            key_reset,
+            width,
+            n_steps=chunk,
+            hold_days=hold_days,
+            learning_rate=learning_rate,
         )
         snaps.append(params)
         history.append(np.asarray(values))

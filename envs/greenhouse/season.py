@@ -11,7 +11,7 @@ A policy is ``policy_fn(env, state, key) -> action`` (normalised ``[n, max_dim]`
 from __future__ import annotations
 
 import functools
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +22,9 @@ from envs.base import EnvState
 from envs.greenhouse.expert import expert_action
 
 Policy = Callable[[object, EnvState, jax.Array], jax.Array]
-FIRST_HARVEST_KG = 0.1  # kg/m²: a season's first harvest = cumulative yield reaching ~one fruit per m²
+FIRST_HARVEST_KG = (
+    0.1  # kg/m²: a season's first harvest = cumulative yield reaching ~one fruit per m²
+)
 
 
 @struct.dataclass
@@ -76,7 +78,9 @@ def _run_season(env, policy_fn: Policy, key: jax.Array, num_days: int) -> Season
     _, (metrics, reward) = jax.lax.scan(day, state, jax.random.split(key_policy, num_days))
     reached = metrics.cumulative_yield >= FIRST_HARVEST_KG
     first = jnp.where(jnp.any(reached), jnp.argmax(reached) + 1, -1).astype(jnp.int32)
-    return SeasonTrace(metrics=metrics, reward=reward, episode_return=jnp.sum(reward), first_harvest_day=first)
+    return SeasonTrace(
+        metrics=metrics, reward=reward, episode_return=jnp.sum(reward), first_harvest_day=first
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("policy_fn", "num_days"))
@@ -98,7 +102,9 @@ def run_season(env, policy_fn: Policy, key: jax.Array, num_days: int | None = No
     return _run_season_jit(env, policy_fn, key, int(num_days or env.episode_length))
 
 
-def run_seasons(env, policy_fn: Policy, keys: jax.Array, num_days: int | None = None) -> SeasonTrace:
+def run_seasons(
+    env, policy_fn: Policy, keys: jax.Array, num_days: int | None = None
+) -> SeasonTrace:
     """``run_season`` for a batch of keys ``[B, 2]`` (vmapped): fields get a leading ``B`` axis."""
     return _run_seasons_jit(env, policy_fn, keys, int(num_days or env.episode_length))
 
@@ -126,7 +132,16 @@ def summarize(trace: SeasonTrace) -> dict[str, float]:
 
 def format_summary(traces: Mapping[str, SeasonTrace]) -> str:
     """A plain-text table, one row per policy."""
-    cols = ("yield_kg_m2", "return", "first_harvest_day", "heating_mj_m2", "co2_kg_m2", "electricity_kwh_m2", "profit_eur_m2", "mean_temp_in")
+    cols = (
+        "yield_kg_m2",
+        "return",
+        "first_harvest_day",
+        "heating_mj_m2",
+        "co2_kg_m2",
+        "electricity_kwh_m2",
+        "profit_eur_m2",
+        "mean_temp_in",
+    )
     head = f"{'policy':<10s}" + "".join(f"{c:>20s}" for c in cols)
     rows = [head]
     for name, tr in traces.items():
@@ -135,7 +150,9 @@ def format_summary(traces: Mapping[str, SeasonTrace]) -> str:
     return "\n".join(rows)
 
 
-def plot_season(traces: SeasonTrace | Mapping[str, SeasonTrace], path: str, title: str | None = None) -> str:
+def plot_season(
+    traces: SeasonTrace | Mapping[str, SeasonTrace], path: str, title: str | None = None
+) -> str:
     """Save a 2x2 figure: cumulative yield, indoor vs outdoor temperature, indoor CO2, energy.
 
     ``traces``: one trace or ``{policy name: trace}``; batched traces are averaged over seeds.
@@ -161,7 +178,13 @@ def plot_season(traces: SeasonTrace | Mapping[str, SeasonTrace], path: str, titl
             outdoor_drawn = True
         ax_c.plot(days, m.co2_in, color=line.get_color(), label=name)
         ax_e.plot(days, np.cumsum(m.heating_mj), color=line.get_color(), label=f"{name} heat (MJ)")
-        ax_e.plot(days, np.cumsum(m.electricity_kwh) * 3.6, color=line.get_color(), ls="--", label=f"{name} lamps (MJ el.)")
+        ax_e.plot(
+            days,
+            np.cumsum(m.electricity_kwh) * 3.6,
+            color=line.get_color(),
+            ls="--",
+            label=f"{name} lamps (MJ el.)",
+        )
     ax_y.set_ylabel("cumulative harvest (kg/m²)")
     ax_t.set_ylabel("daily mean temperature (°C)")
     ax_c.set_ylabel("daily mean CO2 (ppm)")

@@ -21,8 +21,23 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from envs.greenhouse.climate import ClimateParams, ClimateState, climate_substep, relative_humidity, saturation_pressure, vapour_density
-from envs.greenhouse.crop import CropDay, CropParams, CropState, gross_photosynthesis, maintenance_respiration, node_rate_factor, photoperiod_factor
+from envs.greenhouse.climate import (
+    ClimateParams,
+    ClimateState,
+    climate_substep,
+    relative_humidity,
+    saturation_pressure,
+    vapour_density,
+)
+from envs.greenhouse.crop import (
+    CropDay,
+    CropParams,
+    CropState,
+    gross_photosynthesis,
+    maintenance_respiration,
+    node_rate_factor,
+    photoperiod_factor,
+)
 from envs.greenhouse.water import WaterParams, potential_transpiration, stress_factor, water_update
 from envs.greenhouse.weather import Weather
 
@@ -81,22 +96,45 @@ def simulate_day(
     dt_h = 1.0 / n_sub
     # Quantities constant over the day: the crop state only changes at midnight.
     w_living = crop.w - crop.wm
-    vapour_out = vapour_density(saturation_pressure(day_weather.temp_air) * day_weather.rh / 100.0, day_weather.temp_air)
+    vapour_out = vapour_density(
+        saturation_pressure(day_weather.temp_air) * day_weather.rh / 100.0, day_weather.temp_air
+    )
     lamp_par = kp.lamp_power * kp.lamp_efficacy  # µmol m^-2 s^-1 with lamps fully on
     lamp_rad = kp.lamp_power * kp.lamp_radiation  # W/m² radiation at the canopy
     pg_to_g_per_h = cp.d_conv / 24.0  # µmol CO2 m^-2 s^-1 -> g CH2O m^-2 h^-1
     # Hours of light today (sun or lamps): long days injure the leaves (crop.photoperiod_factor).
-    light_hours = jnp.sum(jnp.maximum((day_weather.ghi > 0.0).astype(jnp.float32), jnp.mean(schedule["lamp"], axis=1)))
+    light_hours = jnp.sum(
+        jnp.maximum((day_weather.ghi > 0.0).astype(jnp.float32), jnp.mean(schedule["lamp"], axis=1))
+    )
     pp_factor = photoperiod_factor(light_hours, cp)
 
     def hour(carry, x):
         clim, th = carry
-        acc = {k: 0.0 for k in ("t", "rh", "co2", "par", "pg", "rm", "dn", "heat", "dose", "irr", "tr", "drain", "fw")}
+        acc = {
+            k: 0.0
+            for k in (
+                "t",
+                "rh",
+                "co2",
+                "par",
+                "pg",
+                "rm",
+                "dn",
+                "heat",
+                "dose",
+                "irr",
+                "tr",
+                "drain",
+                "fw",
+            )
+        }
         for k in range(n_sub):
             lamp, irr_on = x["lamp"][k], x["irr"][k]
             f_w = stress_factor(th, wp)
             par = x["ghi"] * kp.transmission * kp.par_per_joule + lamp * lamp_par
-            pg = f_w * pp_factor * gross_photosynthesis(par, clim.co2, clim.temp, crop.lai, cp)  # µmol m^-2 s^-1
+            pg = (
+                f_w * pp_factor * gross_photosynthesis(par, clim.co2, clim.temp, crop.lai, cp)
+            )  # µmol m^-2 s^-1
             rm = maintenance_respiration(clim.temp, w_living, cp)  # g CH2O m^-2 h^-1
             uptake = pg * CO2_KG_PER_UMOL - rm * CH2O_TO_CO2 / 3.6e6  # kg CO2 m^-2 s^-1
             es = saturation_pressure(clim.temp)
@@ -119,7 +157,9 @@ def simulate_day(
                 dt=dt,
                 p=kp,
             )
-            th, transpired, drained = water_update(th, irr_on * wp.irrigation_rate * dt_h, transp * dt, wp)
+            th, transpired, drained = water_update(
+                th, irr_on * wp.irrigation_rate * dt_h, transp * dt, wp
+            )
             t_mid = 0.5 * (t_prev + clim.temp)
             acc["t"] += t_mid * dt_h
             acc["rh"] += relative_humidity(clim.vapour, clim.temp) * dt_h

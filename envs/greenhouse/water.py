@@ -46,14 +46,19 @@ def stress_factor(theta: jax.Array, p: WaterParams) -> jax.Array:
     return jnp.clip((theta - wilt) / (crit - wilt), 0.0, 1.0)
 
 
-def potential_transpiration(radiation: jax.Array, vpd_kpa: jax.Array, lai: jax.Array, p: WaterParams) -> jax.Array:
+def potential_transpiration(
+    radiation: jax.Array, vpd_kpa: jax.Array, lai: jax.Array, p: WaterParams
+) -> jax.Array:
     """Unstressed canopy transpiration, kg m^-2 s^-1.
 
     ``radiation``: indoor short-wave radiation at the canopy (sun + lamps), W/m²;
     ``vpd_kpa``: air vapour-pressure deficit, kPa; ``lai``: leaf area index.
     """
     cover = 1.0 - jnp.exp(-p.extinction * lai)
-    return cover * (p.rad_coef * jnp.maximum(radiation, 0.0) / LATENT_HEAT + p.vpd_coef * jnp.maximum(vpd_kpa, 0.0))
+    return cover * (
+        p.rad_coef * jnp.maximum(radiation, 0.0) / LATENT_HEAT
+        + p.vpd_coef * jnp.maximum(vpd_kpa, 0.0)
+    )
 
 
 def water_update(theta: jax.Array, irrigation: jax.Array, transpiration: jax.Array, p: WaterParams):

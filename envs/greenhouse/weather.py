@@ -57,10 +57,12 @@ class Weather:
     wind: jax.Array
     temp_sky: jax.Array
 
-    def day(self, day_of_year_index: jax.Array) -> "Weather":
+    def day(self, day_of_year_index: jax.Array) -> Weather:
         """The 24 hours of one day: ``[]`` int index 0..364 (wraps) -> fields ``[24]``."""
         i = jnp.mod(day_of_year_index, DAYS_PER_YEAR)
-        return jax.tree.map(lambda x: jax.lax.dynamic_index_in_dim(x, i, axis=0, keepdims=False), self)
+        return jax.tree.map(
+            lambda x: jax.lax.dynamic_index_in_dim(x, i, axis=0, keepdims=False), self
+        )
 
 
 def default_weather_path() -> str:
@@ -76,7 +78,9 @@ def bundled_weather_path(name: str) -> str:
 
     path = os.path.join(os.path.dirname(pvlib.__file__), "data", name)
     if not os.path.exists(path):
-        raise FileNotFoundError(f"pvlib does not bundle {name!r} (looked in {os.path.dirname(path)})")
+        raise FileNotFoundError(
+            f"pvlib does not bundle {name!r} (looked in {os.path.dirname(path)})"
+        )
     return path
 
 
@@ -85,7 +89,9 @@ def sky_temperature_from_infrared(ir: np.ndarray) -> np.ndarray:
     return (np.maximum(ir, 1.0) / STEFAN_BOLTZMANN) ** 0.25 - KELVIN
 
 
-def sky_temperature_from_clouds(temp_air: np.ndarray, temp_dew: np.ndarray, opaque_cover_tenths: np.ndarray) -> np.ndarray:
+def sky_temperature_from_clouds(
+    temp_air: np.ndarray, temp_dew: np.ndarray, opaque_cover_tenths: np.ndarray
+) -> np.ndarray:
     """Sky temperature °C from air temperature °C, dew point °C and opaque sky cover (tenths).
 
     Berdahl & Martin (1984) clear-sky emissivity with Walton's (1983) cloud correction, as in
@@ -99,7 +105,8 @@ def sky_temperature_from_clouds(temp_air: np.ndarray, temp_dew: np.ndarray, opaq
 
 
 def _fill(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Treat values outside [lo, hi] (missing-data codes) and NaN as missing; interpolate in time."""
+    """Treat values outside [lo, hi] (missing-data codes) and NaN as missing; interpolate in
+    time."""
     x = np.asarray(x, np.float64).copy()
     bad = ~np.isfinite(x) | (x < lo) | (x > hi)
     if bad.all():
@@ -129,7 +136,11 @@ def _columns_epw(path: str) -> dict[str, np.ndarray]:
     # EPW marks missing infrared as 9999; fall back to the cloud-based estimate hour by hour.
     ir_ok = np.isfinite(ir) & (ir > 50.0) & (ir < 800.0)
     cover = _fill(df["opaque_sky_cover"].to_numpy(), 0.0, 10.0)
-    temp_sky = np.where(ir_ok, sky_temperature_from_infrared(np.where(ir_ok, ir, 300.0)), sky_temperature_from_clouds(temp_air, temp_dew, cover))
+    temp_sky = np.where(
+        ir_ok,
+        sky_temperature_from_infrared(np.where(ir_ok, ir, 300.0)),
+        sky_temperature_from_clouds(temp_air, temp_dew, cover),
+    )
     return {
         "ghi": _fill(df["ghi"].to_numpy(), 0.0, 1500.0),
         "temp_air": temp_air,
@@ -168,7 +179,9 @@ def load_weather(path: str | None = None, fmt: str = "auto") -> Weather:
     """
     path = default_weather_path() if path is None else os.fspath(path)
     if not os.path.exists(path):
-        raise FileNotFoundError(f"weather file not found: {path!r} (pass an EPW or TMY3 file, or None for the default)")
+        raise FileNotFoundError(
+            f"weather file not found: {path!r} (pass an EPW or TMY3 file, or None for the default)"
+        )
     if fmt == "auto":
         fmt = "epw" if path.lower().endswith(".epw") else "tmy3"
     if fmt not in ("epw", "tmy3"):

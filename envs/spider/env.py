@@ -22,18 +22,18 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 from mujoco import mjx
 
-from envs.base import EnvState, build_config
+from envs.base import CompositeEnv, EnvHints, EnvState, build_config
 from envs.spider.legs import LegSpec, select_legs
 from envs.spider.model import PhysicsOptions, build_mj_model, foot_geom_ids
 from envs.spider.physics import physics_step
-from score_jax.spaces import CompositeSpace, SubSpace
+from score_jax.core.spaces import CompositeSpace, SubSpace
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,11 +49,11 @@ class SpiderConfig:
       terminate_when_unhealthy: if False the episode only ends by the time limit and the
         healthy bonus is paid only while healthy.
       reset_noise_scale: uniform noise on qpos and Gaussian std on qvel at reset (Ant: 0.1).
-      timestep, solver, iterations, ls_iterations, eulerdamp, cone, joint_limits: physics
-        options (see ``envs.spider.model.PhysicsOptions``); the defaults follow MJX's
-        performance notes and are checked against accurate MuJoCo in the tests.
+      physics: MuJoCo options (``envs.spider.model.PhysicsOptions``); the defaults follow MJX's
+        performance notes and are checked against accurate MuJoCo in the tests. From the
+        command line: ``--env-options physics.timestep=0.005``.
       lean_step: step with ``envs.spider.physics.lean_step`` (``mjx.step`` without the unused
-        Cartesian-force term, same result, ~15% faster on CPU) instead of ``mjx.step``.
+        Cartesian-force term, same result, faster) instead of ``mjx.step``.
     """
 
     episode_length: int = 1000
@@ -63,13 +63,7 @@ class SpiderConfig:
     healthy_z_range: tuple[float, float] = (0.2, 1.0)
     terminate_when_unhealthy: bool = True
     reset_noise_scale: float = 0.1
-    timestep: float = 0.01
-    solver: str = "newton"
-    iterations: int = 1
-    ls_iterations: int = 4
-    eulerdamp: bool = False
-    cone: str = "pyramidal"
-    joint_limits: bool = True
+    physics: PhysicsOptions = PhysicsOptions()
     lean_step: bool = True
 
     def __post_init__(self):
@@ -77,24 +71,14 @@ class SpiderConfig:
             raise ValueError("episode_length and frame_skip must be >= 1")
         lo, hi = self.healthy_z_range
         if not lo < hi:
-            raise ValueError(f"healthy_z_range must be (min, max) with min < max, got {self.healthy_z_range}")
-
-    @property
-    def physics(self) -> PhysicsOptions:
-        return PhysicsOptions(
-            timestep=self.timestep,
-            solver=self.solver,
-            iterations=self.iterations,
-            ls_iterations=self.ls_iterations,
-            eulerdamp=self.eulerdamp,
-            cone=self.cone,
-            limits=self.joint_limits,
-        )
+            raise ValueError(
+                f"healthy_z_range must be (min, max) with min < max, got {self.healthy_z_range}"
+            )
 
     @property
     def dt(self) -> float:
         """Seconds of simulated time per environment step."""
-        return self.frame_skip * self.timestep
+        return self.frame_skip * self.physics.timestep
 
 
 @struct.dataclass
@@ -119,11 +103,16 @@ class SpiderMetrics:
 
 
 def leg_space(legs: Sequence[LegSpec]) -> CompositeSpace:
-    """One continuous sub-space ``leg_<name>`` in [-1, 1] (default 0) per leg, dim = its actuators."""
-    return CompositeSpace(tuple(SubSpace.continuous(leg.subspace_name, leg.n_actuators, -1.0, 1.0, 0.0) for leg in legs))
+    """One continuous sub-space ``leg_<name>`` in [-1, 1] (default 0) per leg, dim = its
+    actuators."""
+    return CompositeSpace(
+        tuple(
+            SubSpace.continuous(leg.subspace_name, leg.n_actuators, -1.0, 1.0, 0.0) for leg in legs
+        )
+    )
 
 
-class SpiderEnv:
+class SpiderEnv(CompositeEnv):
     """The Spider as a ``CompositeEnv`` (pure ``reset`` / ``step``; ``jit(vmap(step))`` works).
 
     Attributes:
@@ -135,6 +124,7 @@ class SpiderEnv:
     """
 
     name = "spider"
+    hints = EnvHints(total_steps=200_000, eval_every=20_000)
 
     def __init__(self, legs: Sequence[LegSpec], config: SpiderConfig = SpiderConfig()):
         self.legs = tuple(legs)
@@ -153,18 +143,23 @@ class SpiderEnv:
         return self.config.dt
 
     def reset(self, key: jax.Array) -> EnvState:
-        """Standing pose + Ant's reset noise. ``key`` -> ``EnvState`` (``obs [observation_size]``)."""
+        """Standing pose + Ant's reset noise. ``key`` -> ``EnvState``
+        (``obs [observation_size]``)."""
         key_pos, key_vel = jax.random.split(key)
         scale = self.config.reset_noise_scale
         nq, nv = self.mj_model.nq, self.mj_model.nv
-        qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32) + jax.random.uniform(key_pos, (nq,), minval=-scale, maxval=scale)
+        qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32) + jax.random.uniform(
+            key_pos, (nq,), minval=-scale, maxval=scale
+        )
         # Keep the torso quaternion a unit quaternion (Ant's noise is added to it unnormalised).
         qpos = qpos.at[3:7].set(qpos[3:7] / jnp.linalg.norm(qpos[3:7]))
         qvel = scale * jax.random.normal(key_vel, (nv,))
         data = self._data0.replace(qpos=qpos, qvel=qvel)
         zero = jnp.zeros((), jnp.float32)
         metrics = SpiderMetrics(zero, zero, zero, qpos[0], qpos[1], zero, zero, qpos[2])
-        return EnvState(SpiderSim(data), self._obs(data), zero, zero, zero, jnp.zeros((), jnp.int32), metrics)
+        return EnvState(
+            SpiderSim(data), self._obs(data), zero, zero, zero, jnp.zeros((), jnp.int32), metrics
+        )
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply ``action`` (normalised ``[n, max_dim]``) for ``frame_skip`` physics steps.
@@ -177,7 +172,9 @@ class SpiderEnv:
         data0 = state.sim.data
         data = data0.replace(ctrl=ctrl)
         # A rolled loop (not unrolled) keeps the compiled program, and compile time, small.
-        data = jax.lax.fori_loop(0, cfg.frame_skip, lambda _, d: physics_step(self.sys, d, cfg.lean_step), data)
+        data = jax.lax.fori_loop(
+            0, cfg.frame_skip, lambda _, d: physics_step(self.sys, d, cfg.lean_step), data
+        )
 
         velocity = (data.qpos[:2] - data0.qpos[:2]) / cfg.dt
         z = data.qpos[2]
@@ -192,7 +189,16 @@ class SpiderEnv:
         time_up = (t >= cfg.episode_length).astype(jnp.float32)
         done = jnp.maximum(terminal, time_up)
         truncated = time_up * (1.0 - terminal)
-        metrics = SpiderMetrics(velocity[0], jnp.asarray(healthy_reward, jnp.float32), ctrl_cost, data.qpos[0], data.qpos[1], velocity[0], velocity[1], z)
+        metrics = SpiderMetrics(
+            velocity[0],
+            jnp.asarray(healthy_reward, jnp.float32),
+            ctrl_cost,
+            data.qpos[0],
+            data.qpos[1],
+            velocity[0],
+            velocity[1],
+            z,
+        )
         return EnvState(SpiderSim(data), self._obs(data), reward, done, truncated, t, metrics)
 
     def _obs(self, data: mjx.Data) -> jax.Array:

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import jax.numpy as jnp
 import numpy as np
 
 from envs.spider.legs import LegSpec
-from score_jax.spaces import CompositeSpace
+from score_jax.core.spaces import CompositeSpace
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +54,9 @@ def _leg_coefficients(leg: LegSpec) -> tuple[float, float]:
     return hip_sign, phase
 
 
-def gait_tables(legs: Sequence[LegSpec], space: CompositeSpace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def gait_tables(
+    legs: Sequence[LegSpec], space: CompositeSpace
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Static per-dimension tables ``[n, max_dim]``: hip weights, pitch weights, leg phases."""
     hip = np.zeros((space.n, space.max_dim), np.float32)
     pitch = np.zeros((space.n, space.max_dim), np.float32)
@@ -70,17 +72,31 @@ def gait_tables(legs: Sequence[LegSpec], space: CompositeSpace) -> tuple[np.ndar
     return hip, pitch, phase
 
 
-def sinusoidal_gait(legs: Sequence[LegSpec], space: CompositeSpace, t: jnp.ndarray, params: GaitParams = GaitParams()) -> jnp.ndarray:
-    """Normalised action ``[..., n, max_dim]`` of the gait at time(s) ``t`` (seconds, shape ``[...]``).
+def sinusoidal_gait(
+    legs: Sequence[LegSpec],
+    space: CompositeSpace,
+    t: jnp.ndarray,
+    params: GaitParams = GaitParams(),
+) -> jnp.ndarray:
+    """Normalised action ``[..., n, max_dim]`` of the gait at time(s) ``t`` (seconds, shape
+    ``[...]``).
 
     hip_i(t) = A_h * s_i * sin(w t + phi_i);  pitch_i(t) = A_l * cos(w t + phi_i + lift_phase)
     """
     hip, pitch, phase = gait_tables(legs, space)
     theta = 2.0 * jnp.pi / params.period * jnp.asarray(t, jnp.float32)[..., None, None] + phase
-    action = params.hip_amplitude * hip * jnp.sin(theta) + params.lift_amplitude * pitch * jnp.cos(theta + params.lift_phase)
+    action = params.hip_amplitude * hip * jnp.sin(theta) + params.lift_amplitude * pitch * jnp.cos(
+        theta + params.lift_phase
+    )
     return jnp.clip(action, -1.0, 1.0)
 
 
-def gait_actions(legs: Sequence[LegSpec], space: CompositeSpace, n_steps: int, dt: float, params: GaitParams = GaitParams()) -> jnp.ndarray:
+def gait_actions(
+    legs: Sequence[LegSpec],
+    space: CompositeSpace,
+    n_steps: int,
+    dt: float,
+    params: GaitParams = GaitParams(),
+) -> jnp.ndarray:
     """``[n_steps, n, max_dim]`` gait actions for env steps 0..n_steps-1 of length ``dt``."""
     return sinusoidal_gait(legs, space, jnp.arange(n_steps) * dt, params)

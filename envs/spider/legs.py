@@ -38,7 +38,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 JointKind = Literal["hip", "pitch"]
 
@@ -66,10 +67,15 @@ class JointSpec:
 
     def __post_init__(self):
         if self.kind not in ("hip", "pitch"):
-            raise ValueError(f"joint {self.name!r}: kind must be 'hip' or 'pitch', got {self.kind!r}")
+            raise ValueError(
+                f"joint {self.name!r}: kind must be 'hip' or 'pitch', got {self.kind!r}"
+            )
         lo, hi = self.range_deg
         if not lo < 0.0 < hi:
-            raise ValueError(f"joint {self.name!r}: range_deg must contain the rest pose 0 strictly inside, got {self.range_deg}")
+            raise ValueError(
+                f"joint {self.name!r}: range_deg must contain the rest pose 0 strictly inside, "
+                f"got {self.range_deg}"
+            )
         if self.gear <= 0:
             raise ValueError(f"joint {self.name!r}: gear must be positive, got {self.gear}")
 
@@ -102,12 +108,16 @@ class LegSpec:
             raise ValueError(f"leg {self.name!r}: needs at least one segment")
         if len(self.segment_tilts_deg) != k or len(self.joints) != k:
             raise ValueError(
-                f"leg {self.name!r}: segment_lengths, segment_tilts_deg and joints need the same length "
-                f"(one joint before each segment), got {k}, {len(self.segment_tilts_deg)}, {len(self.joints)}"
+                f"leg {self.name!r}: segment_lengths, segment_tilts_deg and joints need the same "
+                "length (one joint before each segment), "
+                f"got {k}, {len(self.segment_tilts_deg)}, {len(self.joints)}"
             )
         kinds = [j.kind for j in self.joints]
         if kinds[0] != "hip" or any(x != "pitch" for x in kinds[1:]):
-            raise ValueError(f"leg {self.name!r}: joints must be one 'hip' followed by 'pitch' joints, got {kinds}")
+            raise ValueError(
+                f"leg {self.name!r}: joints must be one 'hip' followed by 'pitch' joints, "
+                f"got {kinds}"
+            )
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ValueError(f"leg {self.name!r}: duplicate joint names {names}")
@@ -124,7 +134,10 @@ class LegSpec:
 
     def tip_drop(self) -> float:
         """Vertical distance (m) from the hip down to the leg tip's centre in the rest pose."""
-        return sum(length * math.sin(math.radians(t)) for length, t in zip(self.segment_lengths, self.segment_tilts_deg))
+        return sum(
+            length * math.sin(math.radians(t))
+            for length, t in zip(self.segment_lengths, self.segment_tilts_deg, strict=True)
+        )
 
 
 def solve_tilt(drop: float, length: float) -> float:
@@ -146,11 +159,22 @@ def ant_leg(name: str, angle_deg: float, thigh: float, shin: float, gear: float 
         angle_deg,
         (thigh, shin),
         (0.0, tilt),
-        (JointSpec("hip", "hip", (-30.0, 30.0), gear), JointSpec("ankle", "pitch", (-20.0, 20.0), gear)),
+        (
+            JointSpec("hip", "hip", (-30.0, 30.0), gear),
+            JointSpec("ankle", "pitch", (-20.0, 20.0), gear),
+        ),
     )
 
 
-def long_leg(name: str, angle_deg: float, thigh: float, femur: float, tibia: float, knee_up_deg: float = 30.0, gear: float = 150.0) -> LegSpec:
+def long_leg(
+    name: str,
+    angle_deg: float,
+    thigh: float,
+    femur: float,
+    tibia: float,
+    knee_up_deg: float = 30.0,
+    gear: float = 150.0,
+) -> LegSpec:
     """A longer three-segment spider leg: yaw hip, raised knee (pitch), ankle (pitch)."""
     drop = STANCE_HEIGHT - LEG_RADIUS + femur * math.sin(math.radians(knee_up_deg))
     tilt = solve_tilt(drop, tibia)
@@ -170,7 +194,9 @@ def long_leg(name: str, angle_deg: float, thigh: float, femur: float, tibia: flo
 def rigid_leg(name: str, angle_deg: float, length: float, gear: float = 100.0) -> LegSpec:
     """A short rigid peg on a yaw hip (one actuator); it reaches the floor at the stance height."""
     tilt = solve_tilt(STANCE_HEIGHT - LEG_RADIUS, length)
-    return LegSpec(name, angle_deg, (length,), (tilt,), (JointSpec("hip", "hip", (-30.0, 30.0), gear),))
+    return LegSpec(
+        name, angle_deg, (length,), (tilt,), (JointSpec("hip", "hip", (-30.0, 30.0), gear),)
+    )
 
 
 #: The default 8-leg body of §5.2.1; sub-action dims [2, 2, 2, 2, 3, 3, 1, 1].
@@ -193,7 +219,9 @@ def _canonical(name: str) -> str:
     return name[len("leg_") :] if name.startswith("leg_") else name
 
 
-def select_legs(legs: Sequence[str | LegSpec] | None, table: Sequence[LegSpec] = DEFAULT_LEGS) -> tuple[LegSpec, ...]:
+def select_legs(
+    legs: Sequence[str | LegSpec] | None, table: Sequence[LegSpec] = DEFAULT_LEGS
+) -> tuple[LegSpec, ...]:
     """Resolve the ``legs`` option of ``make_spider`` into a leg table.
 
     Args:
@@ -210,7 +238,9 @@ def select_legs(legs: Sequence[str | LegSpec] | None, table: Sequence[LegSpec] =
         return tuple(table)
     legs = tuple(legs)
     if not legs:
-        raise ValueError(f"legs must name at least one leg; accepted: {[leg.name for leg in table]}")
+        raise ValueError(
+            f"legs must name at least one leg; accepted: {[leg.name for leg in table]}"
+        )
     if all(isinstance(x, LegSpec) for x in legs):
         names = [leg.name for leg in legs]
         if len(set(names)) != len(names):
@@ -220,9 +250,11 @@ def select_legs(legs: Sequence[str | LegSpec] | None, table: Sequence[LegSpec] =
         raise ValueError("legs must be all names (str) or all LegSpec, not a mix")
     wanted = [_canonical(x) for x in legs]
     known = [leg.name for leg in table]
-    unknown = [x for x, w in zip(legs, wanted) if w not in known]
+    unknown = [x for x, w in zip(legs, wanted, strict=True) if w not in known]
     if unknown:
-        raise ValueError(f"unknown leg name(s) {unknown}; accepted: {known} (optionally prefixed with 'leg_')")
+        raise ValueError(
+            f"unknown leg name(s) {unknown}; accepted: {known} (optionally prefixed with 'leg_')"
+        )
     if len(set(wanted)) != len(wanted):
         raise ValueError(f"duplicate leg names in {list(legs)}")
     return tuple(leg for leg in table if leg.name in set(wanted))

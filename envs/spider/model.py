@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import xml.etree.ElementTree as ET
-from typing import Sequence
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -67,7 +67,8 @@ def _fmt(v: Sequence[float]) -> str:
 
 
 def _direction(angle_deg: float, tilt_deg: float) -> np.ndarray:
-    """Unit vector along a leg at ``angle_deg`` around z, tilted ``tilt_deg`` below the horizontal."""
+    """Unit vector along a leg at ``angle_deg`` around z, tilted ``tilt_deg`` below the
+    horizontal."""
     a, t = math.radians(angle_deg), math.radians(tilt_deg)
     return np.array([math.cos(a) * math.cos(t), math.sin(a) * math.cos(t), -math.sin(t)])
 
@@ -86,20 +87,57 @@ def _add_leg(torso: ET.Element, leg: LegSpec) -> None:
     """Append the mount capsule to ``torso`` and the leg's body chain below it."""
     prefix = f"{leg.name}_"
     mount_end = _direction(leg.angle_deg, 0.0) * leg.mount_length
-    ET.SubElement(torso, "geom", name=prefix + "mount", type="capsule", fromto=_fmt([0, 0, 0, *mount_end]), size=_fmt([LEG_RADIUS]))
+    ET.SubElement(
+        torso,
+        "geom",
+        name=prefix + "mount",
+        type="capsule",
+        fromto=_fmt([0, 0, 0, *mount_end]),
+        size=_fmt([LEG_RADIUS]),
+    )
     parent, pos = torso, mount_end
-    for i, (joint, length, tilt) in enumerate(zip(leg.joints, leg.segment_lengths, leg.segment_tilts_deg)):
+    for i, (joint, length, tilt) in enumerate(
+        zip(leg.joints, leg.segment_lengths, leg.segment_tilts_deg, strict=True)
+    ):
         body = ET.SubElement(parent, "body", name=prefix + f"seg{i}", pos=_fmt(pos))
         axis = (0.0, 0.0, 1.0) if joint.kind == "hip" else _pitch_axis(leg.angle_deg)
-        ET.SubElement(body, "joint", name=prefix + joint.name, type="hinge", axis=_fmt(axis), range=_fmt(joint.range_deg))
+        ET.SubElement(
+            body,
+            "joint",
+            name=prefix + joint.name,
+            type="hinge",
+            axis=_fmt(axis),
+            range=_fmt(joint.range_deg),
+        )
         end = _direction(leg.angle_deg, tilt) * length
-        ET.SubElement(body, "geom", name=prefix + f"seg{i}", type="capsule", fromto=_fmt([0, 0, 0, *end]), size=_fmt([LEG_RADIUS]))
+        ET.SubElement(
+            body,
+            "geom",
+            name=prefix + f"seg{i}",
+            type="capsule",
+            fromto=_fmt([0, 0, 0, *end]),
+            size=_fmt([LEG_RADIUS]),
+        )
         parent, pos = body, end
     # The foot: the only geom of the leg that collides (with the floor only).
-    ET.SubElement(parent, "geom", name=prefix + "foot", type="sphere", pos=_fmt(pos), size=_fmt([LEG_RADIUS]), contype="1", mass="0", rgba="0.8 0.3 0.2 1")
+    ET.SubElement(
+        parent,
+        "geom",
+        name=prefix + "foot",
+        type="sphere",
+        pos=_fmt(pos),
+        size=_fmt([LEG_RADIUS]),
+        contype="1",
+        mass="0",
+        rgba="0.8 0.3 0.2 1",
+    )
 
 
-def spider_xml(legs: Sequence[LegSpec], physics: PhysicsOptions = PhysicsOptions(), init_height: float = STANCE_HEIGHT + 0.1) -> str:
+def spider_xml(
+    legs: Sequence[LegSpec],
+    physics: PhysicsOptions = PhysicsOptions(),
+    init_height: float = STANCE_HEIGHT + 0.1,
+) -> str:
     """MJCF text of a spider with the given legs (in order; actuators follow the same order).
 
     Args:
@@ -128,25 +166,83 @@ def spider_xml(legs: Sequence[LegSpec], physics: PhysicsOptions = PhysicsOptions
         ET.SubElement(option, "flag", **{name: "disable" for name in disable})
     default = ET.SubElement(root, "default")
     ET.SubElement(default, "joint", armature="1", damping="1", limited="true")
-    ET.SubElement(default, "geom", contype="0", conaffinity="0", condim="3", density="5.0", friction="1 0.5 0.5", rgba="0.4 0.33 0.26 1")
+    ET.SubElement(
+        default,
+        "geom",
+        contype="0",
+        conaffinity="0",
+        condim="3",
+        density="5.0",
+        friction="1 0.5 0.5",
+        rgba="0.4 0.33 0.26 1",
+    )
     ET.SubElement(default, "motor", ctrllimited="true", ctrlrange="-1 1")
 
     visual = ET.SubElement(root, "visual")
-    ET.SubElement(visual, "headlight", ambient="0.35 0.35 0.35", diffuse="0.5 0.5 0.5", specular="0.1 0.1 0.1")
+    ET.SubElement(
+        visual, "headlight", ambient="0.35 0.35 0.35", diffuse="0.5 0.5 0.5", specular="0.1 0.1 0.1"
+    )
     asset = ET.SubElement(root, "asset")
-    ET.SubElement(asset, "texture", name="grid", type="2d", builtin="checker", width="256", height="256", rgb1="0.35 0.4 0.45", rgb2="0.55 0.6 0.65")
-    ET.SubElement(asset, "material", name="grid", texture="grid", texrepeat="8 8", reflectance="0.1")
-    ET.SubElement(asset, "texture", name="sky", type="skybox", builtin="gradient", rgb1="0.4 0.6 0.8", rgb2="0 0 0", width="64", height="64")
+    ET.SubElement(
+        asset,
+        "texture",
+        name="grid",
+        type="2d",
+        builtin="checker",
+        width="256",
+        height="256",
+        rgb1="0.35 0.4 0.45",
+        rgb2="0.55 0.6 0.65",
+    )
+    ET.SubElement(
+        asset, "material", name="grid", texture="grid", texrepeat="8 8", reflectance="0.1"
+    )
+    ET.SubElement(
+        asset,
+        "texture",
+        name="sky",
+        type="skybox",
+        builtin="gradient",
+        rgb1="0.4 0.6 0.8",
+        rgb2="0 0 0",
+        width="64",
+        height="64",
+    )
 
     world = ET.SubElement(root, "worldbody")
-    ET.SubElement(world, "light", name="sun", directional="true", pos="0 0 3", dir="0 0 -1", diffuse="0.8 0.8 0.8")
-    ET.SubElement(world, "geom", name="floor", type="plane", size="0 0 0.05", material="grid", conaffinity="1", condim="3")
+    ET.SubElement(
+        world,
+        "light",
+        name="sun",
+        directional="true",
+        pos="0 0 3",
+        dir="0 0 -1",
+        diffuse="0.8 0.8 0.8",
+    )
+    ET.SubElement(
+        world,
+        "geom",
+        name="floor",
+        type="plane",
+        size="0 0 0.05",
+        material="grid",
+        conaffinity="1",
+        condim="3",
+    )
     torso = ET.SubElement(world, "body", name="torso", pos=_fmt([0, 0, init_height]))
     ET.SubElement(torso, "freejoint", name="root")
     # The torso collides with the floor too: a spider that flips lands on its back instead of
     # sinking through the floor, which would drive its feet deep below the plane (huge contact
     # forces, NaN). One more sphere-plane pair.
-    ET.SubElement(torso, "geom", name="torso", type="sphere", size=_fmt([TORSO_RADIUS]), contype="1", rgba="0.3 0.3 0.35 1")
+    ET.SubElement(
+        torso,
+        "geom",
+        name="torso",
+        type="sphere",
+        size=_fmt([TORSO_RADIUS]),
+        contype="1",
+        rgba="0.3 0.3 0.35 1",
+    )
     for leg in legs:
         _add_leg(torso, leg)
 
@@ -159,7 +255,9 @@ def spider_xml(legs: Sequence[LegSpec], physics: PhysicsOptions = PhysicsOptions
     return ET.tostring(root, encoding="unicode")
 
 
-def build_mj_model(legs: Sequence[LegSpec], physics: PhysicsOptions = PhysicsOptions()) -> mujoco.MjModel:
+def build_mj_model(
+    legs: Sequence[LegSpec], physics: PhysicsOptions = PhysicsOptions()
+) -> mujoco.MjModel:
     """Compile the spider's MJCF into a ``mujoco.MjModel`` (host side, float64)."""
     names = [leg.name for leg in legs]
     if len(set(names)) != len(names):
@@ -169,4 +267,7 @@ def build_mj_model(legs: Sequence[LegSpec], physics: PhysicsOptions = PhysicsOpt
 
 def foot_geom_ids(model: mujoco.MjModel, legs: Sequence[LegSpec]) -> np.ndarray:
     """``[n_legs]`` geom ids of the feet, in leg order."""
-    return np.asarray([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg.name}_foot") for leg in legs], np.int32)
+    return np.asarray(
+        [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{leg.name}_foot") for leg in legs],
+        np.int32,
+    )

@@ -6,8 +6,8 @@ solve) + the integrator. Two of its parts cost time here for nothing:
 * ``fwd_acceleration`` adds ``xfrc_applied`` (Cartesian forces on bodies) through the
   Jacobian of *every* body (``[nbody, nv, 3]`` per env and physics step) even when those
   forces are zero, which XLA cannot know because they live in the loop carry. The Spider never
-  applies Cartesian forces, so ``lean_step`` skips that term: about 15% of the step on CPU
-  (measured by ``benchmarks/spider_throughput.py``: both variants are in its output).
+  applies Cartesian forces, so ``lean_step`` skips that term (``benchmarks/spider_throughput.py``
+  measures both variants).
 * The model has no sensors, so the sensor stages are no-ops either way.
 
 ``lean_step`` is otherwise the same sequence of public MJX stages, so it returns the same

@@ -18,11 +18,16 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
+import jax
 import mujoco
 import numpy as np
+
+from envs.spider.env import make_spider
+from envs.spider.gait import gait_actions
+from envs.spider.rollout import make_rollout, reset_batch
 
 
 class RenderingUnavailable(RuntimeError):
@@ -30,7 +35,8 @@ class RenderingUnavailable(RuntimeError):
 
 
 def _loaded_backend() -> str:
-    """The ``MUJOCO_GL`` value mujoco read when it was imported (may differ from the current env)."""
+    """The ``MUJOCO_GL`` value mujoco read when it was imported (may differ from the current
+    env)."""
     try:
         from mujoco.rendering.classic import gl_context
 
@@ -40,19 +46,23 @@ def _loaded_backend() -> str:
 
 
 def make_renderer(model: mujoco.MjModel, width: int, height: int) -> mujoco.Renderer:
-    """``mujoco.Renderer`` or ``RenderingUnavailable`` saying which backend failed and what to do."""
+    """``mujoco.Renderer`` or ``RenderingUnavailable`` saying which backend failed and what to
+    do."""
     try:
         return mujoco.Renderer(model, height=height, width=width)
     except Exception as err:  # GLFW/OSMesa/EGL report failures with several exception types
         raise RenderingUnavailable(
             f"cannot create an OpenGL context with the backend mujoco loaded ({_loaded_backend()}; "
             f"{type(err).__name__}: {err}). "
-            "Set MUJOCO_GL=osmesa (needs the libosmesa6 package) or MUJOCO_GL=egl (needs a GPU driver) "
+            "Set MUJOCO_GL=osmesa (needs the libosmesa6 package) "
+            "or MUJOCO_GL=egl (needs a GPU driver) "
             "before mujoco is imported."
         ) from err
 
 
-def tracking_camera(model: mujoco.MjModel, distance: float = 3.2, azimuth: float = 120.0, elevation: float = -25.0) -> mujoco.MjvCamera:
+def tracking_camera(
+    model: mujoco.MjModel, distance: float = 3.2, azimuth: float = 120.0, elevation: float = -25.0
+) -> mujoco.MjvCamera:
     """A camera that follows the torso (``body 1``) from a three-quarter view."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
@@ -61,7 +71,13 @@ def tracking_camera(model: mujoco.MjModel, distance: float = 3.2, azimuth: float
     return cam
 
 
-def render_frames(model: mujoco.MjModel, qpos: np.ndarray, width: int = 480, height: int = 360, camera: mujoco.MjvCamera | None = None) -> list[np.ndarray]:
+def render_frames(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    width: int = 480,
+    height: int = 360,
+    camera: mujoco.MjvCamera | None = None,
+) -> list[np.ndarray]:
     """Render one RGB frame ``[height, width, 3]`` uint8 per row of ``qpos [T, nq]``.
 
     Only positions matter for a picture, so each frame is ``mj_forward`` at that ``qpos``. The
@@ -85,7 +101,13 @@ def render_frames(model: mujoco.MjModel, qpos: np.ndarray, width: int = 480, hei
         renderer.close()
 
 
-def save_frames(frames: Sequence[np.ndarray], out_dir: str | Path, fps: float = 20.0, png: bool = True, gif: bool = True) -> dict[str, list[Path]]:
+def save_frames(
+    frames: Sequence[np.ndarray],
+    out_dir: str | Path,
+    fps: float = 20.0,
+    png: bool = True,
+    gif: bool = True,
+) -> dict[str, list[Path]]:
     """Write ``frame_XXXX.png`` files and/or ``rollout.gif`` into ``out_dir``; returns the paths."""
     import imageio.v3 as iio
 
@@ -104,8 +126,18 @@ def save_frames(frames: Sequence[np.ndarray], out_dir: str | Path, fps: float = 
     return written
 
 
-def render_rollout(model: mujoco.MjModel, qpos: np.ndarray, out_dir: str | Path, fps: float = 20.0, width: int = 480, height: int = 360, png: bool = True, gif: bool = True) -> dict[str, list[Path]]:
-    """Render ``qpos [T, nq]`` (e.g. ``Trajectory.qpos[:, b]``) to PNG frames and a GIF in ``out_dir``.
+def render_rollout(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    out_dir: str | Path,
+    fps: float = 20.0,
+    width: int = 480,
+    height: int = 360,
+    png: bool = True,
+    gif: bool = True,
+) -> dict[str, list[Path]]:
+    """Render ``qpos [T, nq]`` (e.g. ``Trajectory.qpos[:, b]``) to PNG frames and a GIF in
+    ``out_dir``.
 
     ``fps`` should be ``1 / env.dt`` (20 for the default Spider) for real-time playback.
     """
@@ -114,11 +146,6 @@ def render_rollout(model: mujoco.MjModel, qpos: np.ndarray, out_dir: str | Path,
 
 def gait_rollout_qpos(env, steps: int, seed: int = 0) -> np.ndarray:
     """``[steps + 1, nq]`` qpos of one open-loop sinusoidal-gait episode (reset state first)."""
-    import jax
-
-    from envs.spider.gait import gait_actions
-    from envs.spider.rollout import make_rollout, reset_batch
-
     state = reset_batch(env, jax.random.PRNGKey(seed), 1)
     actions = gait_actions(env.legs, env.space, steps, env.dt)[:, None]
     _, traj = make_rollout(env)(state, actions)
@@ -126,21 +153,32 @@ def gait_rollout_qpos(env, steps: int, seed: int = 0) -> np.ndarray:
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, list[Path]]:
-    parser = argparse.ArgumentParser(description="Render a sinusoidal-gait rollout of the Spider to PNG frames and a GIF.")
+    parser = argparse.ArgumentParser(
+        description="Render a sinusoidal-gait rollout of the Spider to PNG frames and a GIF."
+    )
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--steps", type=int, default=100, help="environment steps (dt = 0.05 s each)")
+    parser.add_argument(
+        "--steps", type=int, default=100, help="environment steps (dt = 0.05 s each)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--width", type=int, default=480)
     parser.add_argument("--height", type=int, default=360)
-    parser.add_argument("--legs", nargs="*", default=None, help="leg names to keep (default: all 8)")
+    parser.add_argument(
+        "--legs", nargs="*", default=None, help="leg names to keep (default: all 8)"
+    )
     parser.add_argument("--no-png", action="store_true", help="only write the GIF")
     args = parser.parse_args(argv)
-
-    from envs.spider.env import make_spider
-
     env = make_spider(legs=args.legs)
     qpos = gait_rollout_qpos(env, args.steps, args.seed)
-    written = render_rollout(env.mj_model, qpos, args.out, fps=1.0 / env.dt, width=args.width, height=args.height, png=not args.no_png)
+    written = render_rollout(
+        env.mj_model,
+        qpos,
+        args.out,
+        fps=1.0 / env.dt,
+        width=args.width,
+        height=args.height,
+        png=not args.no_png,
+    )
     print(f"wrote {len(written['png'])} PNG frames and {len(written['gif'])} GIF to {args.out}")
     return written
 

@@ -6,7 +6,7 @@ and show the same thing.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -69,8 +69,11 @@ def reset_batch(env: SpiderEnv, key: jax.Array, batch: int) -> EnvState:
     return jax.jit(jax.vmap(env.reset))(jax.random.split(key, batch))
 
 
-def mujoco_rollout(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, ctrls: np.ndarray, frame_skip: int) -> np.ndarray:
-    """Plain MuJoCo (C, float64) from ``qpos [nq]``, ``qvel [nv]``: ``ctrls [T, nu]`` -> qpos ``[T, nq]``.
+def mujoco_rollout(
+    model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, ctrls: np.ndarray, frame_skip: int
+) -> np.ndarray:
+    """Plain MuJoCo (C, float64) from ``qpos [nq]``, ``qvel [nv]``: ``ctrls [T, nu]`` ->
+    qpos ``[T, nq]``.
 
     Each control is held for ``frame_skip`` ``mj_step`` calls, as ``SpiderEnv.step`` does.
     """

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from score_jax.networks.mlp import MLP
+from score_jax.networks.stacked import stacked
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,7 +70,8 @@ class ActorOutput:
 
 
 class AgentActor(nn.Module):
-    """One sub-space's actor: ``obs [obs_size] -> (mean [width], log_std [width], logits [dw, C])``."""
+    """One sub-space's actor:
+    ``obs [obs_size] -> (mean [width], log_std [width], logits [dw, C])``."""
 
     config: ActorConfig
     action_width: int
@@ -79,8 +81,12 @@ class AgentActor(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array):
         w, C, dw = self.action_width, self.max_choices, self.discrete_width
-        head_init = nn.initializers.variance_scaling(self.config.head_init_scale**2, "fan_in", "truncated_normal")
-        raw = MLP(tuple(self.config.hidden), 2 * w + dw * C, out_kernel_init=head_init, name="mlp")(obs)
+        head_init = nn.initializers.variance_scaling(
+            self.config.head_init_scale**2, "fan_in", "truncated_normal"
+        )
+        raw = MLP(tuple(self.config.hidden), 2 * w + dw * C, out_kernel_init=head_init, name="mlp")(
+            obs
+        )
         mean, raw_log_std, logits = raw[:w], raw[w : 2 * w], raw[2 * w :].reshape(dw, C)
         lo, hi = self.config.log_std_min, self.config.log_std_max
         log_std = lo + 0.5 * (hi - lo) * (jnp.tanh(raw_log_std) + 1.0)
@@ -103,16 +109,10 @@ class Actors(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> ActorOutput:
-        stacked = nn.vmap(
-            AgentActor,
-            variable_axes={"params": 0},
-            split_rngs={"params": True},
-            in_axes=None,
-            out_axes=0,
-            axis_size=self.n_agents,
-        )
         dw = min(self.discrete_width or self.action_width, self.action_width)
-        mean, log_std, logits = stacked(self.config, self.action_width, max(self.max_choices, 1), dw, name="agents")(obs)
+        mean, log_std, logits = stacked(AgentActor, self.n_agents)(
+            self.config, self.action_width, max(self.max_choices, 1), dw, name="agents"
+        )(obs)
         return ActorOutput(mean, log_std, logits)
 
 
@@ -183,13 +183,19 @@ def sample_actions(
     grid, valid = _grid(n_choices[..., :dw], C)
     out_logits = out.logits
     if default is not None:  # the grid index nearest the default gets the prior bonus
-        default_index = jnp.round((default[..., :dw] + 1.0) * 0.5 * jnp.maximum(n_choices[..., :dw] - 1, 1))
+        default_index = jnp.round(
+            (default[..., :dw] + 1.0) * 0.5 * jnp.maximum(n_choices[..., :dw] - 1, 1)
+        )
         out_logits = out_logits + prior_logit * (jnp.arange(C) == default_index[..., None])
     logits = jnp.where(valid, out_logits, -1e9)  # exp underflows to exactly 0 in float32
     log_p = jax.nn.log_softmax(logits, -1)
     # One grid value per column (no discrete dims in the space, C == 1): the choice is certain,
     # so the noise would change nothing; skipping it saves a random draw per update.
-    gumbel = jnp.zeros_like(logits) if (deterministic or C == 1) else jax.random.gumbel(key_gumbel, logits.shape)
+    gumbel = (
+        jnp.zeros_like(logits)
+        if (deterministic or C == 1)
+        else jax.random.gumbel(key_gumbel, logits.shape)
+    )
     k = jnp.argmax(jnp.where(valid, logits + gumbel, -jnp.inf), -1)
     hard_value = jnp.take_along_axis(grid, k[..., None], -1)[..., 0]
     soft_value = jnp.sum(jax.nn.softmax((logits + gumbel) / temperature, -1) * grid, -1)
@@ -204,11 +210,20 @@ def sample_actions(
     disc_value, disc_logp = jnp.pad(disc_value, pad), jnp.pad(disc_logp, pad)
 
     action = jnp.where(discrete, disc_value, jnp.where(continuous, cont_value, 0.0))
-    log_prob = jnp.sum(jnp.where(discrete, disc_logp, 0.0) + jnp.where(continuous, cont_logp, 0.0), -1)
+    log_prob = jnp.sum(
+        jnp.where(discrete, disc_logp, 0.0) + jnp.where(continuous, cont_logp, 0.0), -1
+    )
     return action, log_prob
 
 
-def actor_policy(actors: Actors, params: Any, consts: Any, obs: jax.Array, key: jax.Array, deterministic: bool = False) -> tuple[jax.Array, jax.Array]:
+def actor_policy(
+    actors: Actors,
+    params: Any,
+    consts: Any,
+    obs: jax.Array,
+    key: jax.Array,
+    deterministic: bool = False,
+) -> tuple[jax.Array, jax.Array]:
     """All agents' sub-actions for a batch of observations (Alg. 1 line 2).
 
     ``obs [B, obs] -> (action [B, n, w], log_prob [B, n])``: the stacked ``actors`` applied to
@@ -218,7 +233,16 @@ def actor_policy(actors: Actors, params: Any, consts: Any, obs: jax.Array, key: 
     out = jax.vmap(lambda o: actors.apply({"params": params}, o))(obs)
     keys = jax.random.split(key, obs.shape[0])
     cfg = actors.config
-    sample = lambda o, k: sample_actions(o, consts.dim_mask, consts.n_choices, k, deterministic, cfg.gumbel_temperature, consts.default_action, cfg.prior_logit)
+    sample = lambda o, k: sample_actions(
+        o,
+        consts.dim_mask,
+        consts.n_choices,
+        k,
+        deterministic,
+        cfg.gumbel_temperature,
+        consts.default_action,
+        cfg.prior_logit,
+    )
     action, logp = jax.vmap(sample)(out, keys)
     valid = consts.valid[None, :]
     return jnp.where(valid[..., None], action, 0.0), jnp.where(valid, logp, 0.0)
@@ -234,7 +258,10 @@ def grow_agents(params: Any, new_params: Any) -> Any:
     old_shapes = jax.tree_util.tree_map(lambda x: x.shape[1:], params)
     new_shapes = jax.tree_util.tree_map(lambda x: x.shape[1:], new_params)
     if old_shapes != new_shapes:
-        raise ValueError("grow_agents: the new actors' params differ in shape from the old ones (check hidden sizes, action_width, max_choices)")
+        raise ValueError(
+            "grow_agents: the new actors' params differ in shape from the old ones "
+            "(check hidden sizes, action_width, max_choices)"
+        )
     return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b], 0), params, new_params)
 
 

@@ -12,8 +12,9 @@ For ONE sample (the learner vmaps over the batch):
 With ``asrl=True`` the HVAE parameters are an ARGUMENT (wrapped in ``stop_gradient``), never
 part of the critic's parameters: they are frozen by construction. With ``asrl=False`` the
 critic owns an encoder of the same architecture (params["encoder"]) trained with it, and
-ignores ``hvae_params``; ``c`` is still an input (pass e.g. ``asrl.random_space_codes``).
-Transfer (§4.3) fine-tunes ``FINETUNE_SUBTREES`` only (see ``finetune_mask``).
+ignores ``hvae_params``; ``c`` is still an input (pass e.g.
+``agents.score.networks.random_space_codes``). Transfer (§4.3) fine-tunes ``FINETUNE_SUBTREES``
+only (see ``finetune_mask``).
 """
 
 from __future__ import annotations
@@ -25,9 +26,17 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from score_jax.networks.gat import AGGREGATIONS, flatten_gat_weights, gat_num_params, gat_stack, init_gat_weights, unflatten_gat_weights
+from score_jax.networks.gat import (
+    AGGREGATIONS,
+    flatten_gat_weights,
+    gat_num_params,
+    gat_stack,
+    init_gat_weights,
+    unflatten_gat_weights,
+)
 from score_jax.networks.hvae import HVAE, HVAEConfig
 from score_jax.networks.mlp import MLP
+from score_jax.networks.stacked import stacked
 
 FINETUNE_SUBTREES = ("p_w", "gat", "hyper", "f_xi")
 
@@ -38,9 +47,9 @@ class CriticConfig:
 
     Attributes:
       hidden: hidden width of p_w and f_xi.
-      agent_dim: width of the agent embeddings e_i and of every GAT layer. 16: the
-        hypernetwork emits m (d^2 + 2d) weights per sample, so d = 32 spent most of an update
-        there (update ~23% faster at 16; main job on two seeds as good or better, README).
+      agent_dim: width of the agent embeddings e_i and of every GAT layer (the hypernetwork
+        emits m (d^2 + 2d) weights per sample, so its cost grows with d squared; see the
+        README's design notes for the measured choice).
       gat_layers: m, the number of GAT layers.
       aggregation: ``"attention"`` (GAT), ``"mean"`` or ``"sum"`` over active agents.
       hypernet: GAT weights from a hypernetwork of the state (True) or plain params (False).
@@ -59,7 +68,9 @@ class CriticConfig:
 
     def __post_init__(self):
         if self.aggregation not in AGGREGATIONS:
-            raise ValueError(f"unknown aggregation {self.aggregation!r}; choose one of {AGGREGATIONS}")
+            raise ValueError(
+                f"unknown aggregation {self.aggregation!r}; choose one of {AGGREGATIONS}"
+            )
         if self.gat_layers < 1:
             raise ValueError(f"gat_layers must be >= 1, got {self.gat_layers}")
 
@@ -96,11 +107,17 @@ class HyperNet(nn.Module):
     def __call__(self, state: jax.Array) -> list:
         size = gat_num_params(self.dims)
         h = nn.relu(nn.Dense(self.hidden, name="dense_0")(state))
-        bias_init = lambda key, shape, dtype=jnp.float32: flatten_gat_weights(init_gat_weights(key, self.dims)).astype(dtype)
+        bias_init = lambda key, shape, dtype=jnp.float32: flatten_gat_weights(
+            init_gat_weights(key, self.dims)
+        ).astype(dtype)
         kernel_init = nn.initializers.variance_scaling(0.01, "fan_in", "truncated_normal")
         kernel, bias = _HyperOut(self.hidden, size, kernel_init, bias_init, name="out")()
-        # The flat layout cut into per-tensor blocks: kernel blocks [hidden, *shape], bias blocks [*shape].
-        kernels, biases = unflatten_gat_weights(kernel, self.dims), unflatten_gat_weights(bias, self.dims)
+        # The flat layout cut into per-tensor blocks: kernel blocks [hidden, *shape],
+        # bias blocks [*shape].
+        kernels, biases = (
+            unflatten_gat_weights(kernel, self.dims),
+            unflatten_gat_weights(bias, self.dims),
+        )
         return jax.tree.map(lambda k, b: jnp.tensordot(h, k, axes=1) + b, kernels, biases)
 
 
@@ -114,7 +131,9 @@ class _HyperOut(nn.Module):
 
     @nn.compact
     def __call__(self) -> tuple[jax.Array, jax.Array]:
-        return self.param("kernel", self.kernel_init, (self.features_in, self.size)), self.param("bias", self.bias_init, (self.size,))
+        return self.param("kernel", self.kernel_init, (self.features_in, self.size)), self.param(
+            "bias", self.bias_init, (self.size,)
+        )
 
 
 def _frozen_hvae(hvae_config: HVAEConfig, obs_size: int, action_width: int) -> HVAE:
@@ -160,16 +179,21 @@ class GraphCritic(nn.Module):
         cfg = self.config
         if cfg.asrl:
             if hvae_params is None:
-                raise ValueError("CriticConfig.asrl=True needs the trained HVAE params (hvae_params); got None")
+                raise ValueError(
+                    "CriticConfig.asrl=True needs the trained HVAE params (hvae_params); got None"
+                )
             frozen = jax.lax.stop_gradient(hvae_params)
             hvae = _frozen_hvae(self.hvae_config, self.obs_size, self.action_width)
             e_o = hvae.apply({"params": frozen}, obs, method=HVAE.encode_obs)
-            e_a = hvae.apply({"params": frozen}, obs, actions, dim_mask, c, method=HVAE.encode_action)[0]
+            e_a = hvae.apply(
+                {"params": frozen}, obs, actions, dim_mask, c, method=HVAE.encode_action
+            )[0]
         else:
             encoder = HVAE(self.hvae_config, self.obs_size, self.action_width, name="encoder")
             e_o = encoder.encode_obs(obs)
             e_a = encoder.encode_action(obs, actions, dim_mask, c)[0]
-        # e_i = p_w(e_o, e_a,i) on the concatenation [e_o, e_a,i], e_o's product computed once for all agents
+        # e_i = p_w(e_o, e_a,i) on the concatenation [e_o, e_a,i], e_o's product computed once
+        # for all agents
         e = MLP((cfg.hidden,), cfg.agent_dim, name="p_w")((e_o, e_a))
 
         dims = self._gat_dims()
@@ -202,15 +226,9 @@ class TwinCritic(nn.Module):
 
     @nn.compact
     def __call__(self, obs, actions, dim_mask, c, mask, hvae_params=None):
-        twin = nn.vmap(
-            GraphCritic,
-            variable_axes={"params": 0},
-            split_rngs={"params": True},
-            in_axes=None,
-            out_axes=0,
-            axis_size=2,
-        )
-        return twin(self.config, self.hvae_config, self.obs_size, self.action_width, name="critics")(obs, actions, dim_mask, c, mask, hvae_params)
+        return stacked(GraphCritic, 2)(
+            self.config, self.hvae_config, self.obs_size, self.action_width, name="critics"
+        )(obs, actions, dim_mask, c, mask, hvae_params)
 
 
 def finetune_mask(params: Any) -> Any:

@@ -5,7 +5,8 @@ from the state hypernetwork (``Theta^(l) = MLP(s^t)``, §4.2): the weights are a
 
 Attention (§4.2), for agent i over the active agents j (i included, the graph is complete):
 
-    alpha_ij = exp(LeakyReLU(a^T [theta x_i || theta x_j])) / sum_k exp(LeakyReLU(a^T [theta x_i || theta x_k]))
+    alpha_ij = exp(LeakyReLU(a^T [theta x_i || theta x_j]))
+               / sum_k exp(LeakyReLU(a^T [theta x_i || theta x_k]))
     x'_i     = ELU( sum_j alpha_ij theta x_j )
 
 Masked (failed, dropped or padded) agents are removed with ``where``, never with large
@@ -17,7 +18,8 @@ nonlinearity stacked layers would collapse into one linear map of the agent feat
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -43,7 +45,9 @@ class GATWeights:
     attn: jax.Array
 
 
-def gat_layer(w: GATWeights, x: jax.Array, mask: jax.Array, aggregation: Aggregation = "attention") -> tuple[jax.Array, jax.Array]:
+def gat_layer(
+    w: GATWeights, x: jax.Array, mask: jax.Array, aggregation: Aggregation = "attention"
+) -> tuple[jax.Array, jax.Array]:
     """One masked GAT layer over a complete graph of ``n`` agents.
 
     Args:
@@ -65,7 +69,9 @@ def gat_layer(w: GATWeights, x: jax.Array, mask: jax.Array, aggregation: Aggrega
     edge = mask[:, None] & mask[None, :]  # [n, n] receiver i, sender j
     if aggregation == "attention":
         d = h.shape[-1]
-        score = jax.nn.leaky_relu((h @ w.attn[:d])[:, None] + (h @ w.attn[d:])[None, :], LEAKY_RELU_SLOPE)
+        score = jax.nn.leaky_relu(
+            (h @ w.attn[:d])[:, None] + (h @ w.attn[d:])[None, :], LEAKY_RELU_SLOPE
+        )
         top = jnp.max(jnp.where(edge, score, -jnp.inf), axis=1, keepdims=True)
         top = jax.lax.stop_gradient(jnp.where(jnp.isfinite(top), top, 0.0))
         # Double where: the exponent of a masked edge is 0 (finite), then the weight is 0.
@@ -81,7 +87,12 @@ def gat_layer(w: GATWeights, x: jax.Array, mask: jax.Array, aggregation: Aggrega
     return jnp.where(mask[:, None], out, 0.0), alpha
 
 
-def gat_stack(weights: Sequence[GATWeights], x: jax.Array, mask: jax.Array, aggregation: Aggregation = "attention") -> tuple[jax.Array, jax.Array]:
+def gat_stack(
+    weights: Sequence[GATWeights],
+    x: jax.Array,
+    mask: jax.Array,
+    aggregation: Aggregation = "attention",
+) -> tuple[jax.Array, jax.Array]:
     """``m`` GAT layers in a row: ``[n, d_0] -> ([n, d_m], alpha [m, n, n])``."""
     alphas = []
     for w in weights:
@@ -95,7 +106,7 @@ def gat_shapes(dims: Sequence[int]) -> list[tuple[tuple[int, int], tuple[int]]]:
     """Per layer ``((d_in, d_out), (2 d_out,))`` for layer widths ``dims = [d_0, ..., d_m]``."""
     if len(dims) < 2:
         raise ValueError(f"dims needs at least an input and an output width, got {list(dims)}")
-    return [((int(a), int(b)), (2 * int(b),)) for a, b in zip(dims[:-1], dims[1:])]
+    return [((int(a), int(b)), (2 * int(b),)) for a, b in zip(dims[:-1], dims[1:], strict=True)]
 
 
 def gat_num_params(dims: Sequence[int]) -> int:
@@ -106,7 +117,10 @@ def gat_num_params(dims: Sequence[int]) -> int:
 def unflatten_gat_weights(flat: jax.Array, dims: Sequence[int]) -> list[GATWeights]:
     """``[gat_num_params(dims)]`` -> list of ``m`` GATWeights (layer by layer, theta then attn)."""
     if flat.shape[-1] != gat_num_params(dims):
-        raise ValueError(f"flat GAT vector has {flat.shape[-1]} entries, layers {list(dims)} need {gat_num_params(dims)}")
+        raise ValueError(
+            f"flat GAT vector has {flat.shape[-1]} entries, "
+            f"layers {list(dims)} need {gat_num_params(dims)}"
+        )
     out, i = [], 0
     for theta_shape, attn_shape in gat_shapes(dims):
         size = theta_shape[0] * theta_shape[1]
@@ -130,7 +144,9 @@ def init_gat_weights(key: jax.Array, dims: Sequence[int]) -> list[GATWeights]:
     """Glorot-uniform theta and attention vectors for ``len(dims) - 1`` layers."""
     init = jax.nn.initializers.glorot_uniform()
     out = []
-    for (theta_shape, attn_shape), k in zip(gat_shapes(dims), jax.random.split(key, len(dims) - 1)):
+    for (theta_shape, attn_shape), k in zip(
+        gat_shapes(dims), jax.random.split(key, len(dims) - 1), strict=True
+    ):
         k_theta, k_attn = jax.random.split(k)
         attn = init(k_attn, (2, theta_shape[1])).reshape(attn_shape)
         out.append(GATWeights(init(k_theta, theta_shape), attn))

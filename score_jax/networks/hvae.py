@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import flax.linen as nn
 import jax
@@ -124,14 +124,18 @@ class HVAEMetrics:
 
 def gaussian_nll(x: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
     """Elementwise -log N(x; mean, exp(log_std)^2)."""
-    return 0.5 * jnp.square((x - mean) * jnp.exp(-log_std)) + log_std + 0.5 * math.log(2.0 * math.pi)
+    return (
+        0.5 * jnp.square((x - mean) * jnp.exp(-log_std)) + log_std + 0.5 * math.log(2.0 * math.pi)
+    )
 
 
 def gaussian_kl(mean_q, log_std_q, mean_p, log_std_p) -> jax.Array:
     """KL(N(mean_q, std_q^2) || N(mean_p, std_p^2)) summed over the last axis."""
     var_ratio = jnp.exp(2.0 * (log_std_q - log_std_p))
     mahalanobis = jnp.square((mean_q - mean_p) * jnp.exp(-log_std_p))
-    return 0.5 * jnp.sum(var_ratio + mahalanobis - 1.0, axis=-1) - jnp.sum(log_std_q - log_std_p, axis=-1)
+    return 0.5 * jnp.sum(var_ratio + mahalanobis - 1.0, axis=-1) - jnp.sum(
+        log_std_q - log_std_p, axis=-1
+    )
 
 
 class LikelihoodScales(nn.Module):
@@ -142,7 +146,9 @@ class LikelihoodScales(nn.Module):
     @nn.compact
     def __call__(self) -> tuple[jax.Array, jax.Array]:
         zeros = nn.initializers.zeros
-        return self.param("obs_log_std", zeros, (self.obs_size,)), self.param("pred_log_std", zeros, (self.obs_size,))
+        return self.param("obs_log_std", zeros, (self.obs_size,)), self.param(
+            "pred_log_std", zeros, (self.obs_size,)
+        )
 
 
 class HVAE(nn.Module):
@@ -176,7 +182,14 @@ class HVAE(nn.Module):
         """q_phi state encoder: ``[..., obs_size] -> e_o [..., obs_embed_dim]``."""
         return self.obs_encoder(obs)
 
-    def encode_space(self, obs_set: jax.Array, set_mask: jax.Array, prev_obs_set: jax.Array, action_set: jax.Array, dim_mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def encode_space(
+        self,
+        obs_set: jax.Array,
+        set_mask: jax.Array,
+        prev_obs_set: jax.Array,
+        action_set: jax.Array,
+        dim_mask: jax.Array,
+    ) -> tuple[jax.Array, jax.Array]:
         """q_phi(c | O_i): ``(mean [c], log_std [c])`` of one sub-space's set.
 
         Args:
@@ -188,13 +201,18 @@ class HVAE(nn.Module):
         """
         m = obs_set.shape[0]
         mask_f = jnp.broadcast_to(dim_mask.astype(jnp.float32), (m, self.action_width))
-        feats = jnp.concatenate([self.encode_obs(prev_obs_set), self.encode_obs(obs_set), action_set * mask_f, mask_f], -1)
+        feats = jnp.concatenate(
+            [self.encode_obs(prev_obs_set), self.encode_obs(obs_set), action_set * mask_f, mask_f],
+            -1,
+        )
         feats = nn.relu(self.set_element(feats))
         w = set_mask.astype(jnp.float32)[:, None]
         pooled = jnp.sum(feats * w, 0) / jnp.maximum(jnp.sum(w), 1.0)
         return gaussian_head(self.space_head(pooled), self.config.min_log_std, 2.0)
 
-    def encode_action(self, obs: jax.Array, action: jax.Array, dim_mask: jax.Array, c: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def encode_action(
+        self, obs: jax.Array, action: jax.Array, dim_mask: jax.Array, c: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
         """q_psi(z | o, a, c): ``obs [..., obs_size], action [..., width], dim_mask [..., width],
         c [..., c_dim] -> (mean [..., z], log_std [..., z])``. Padded columns are zeroed here,
         and the dim mask is an input, so sub-spaces of different widths stay distinguishable."""
@@ -202,7 +220,9 @@ class HVAE(nn.Module):
         e_o = self.encode_obs(obs)
         # The concatenation [e_o, a, mask, c] as parts: e_o (per sample) and mask, c (per agent)
         # enter the first layer once each instead of once per (sample, agent) pair.
-        return gaussian_head(self.action_encoder((e_o, action * mask_f, mask_f, c)), self.config.min_log_std, 2.0)
+        return gaussian_head(
+            self.action_encoder((e_o, action * mask_f, mask_f, c)), self.config.min_log_std, 2.0
+        )
 
     # --- decoders and priors --------------------------------------------------------------
     def decode(self, z: jax.Array, c: jax.Array) -> jax.Array:
@@ -233,7 +253,9 @@ class HVAE(nn.Module):
         return soft_clip(obs_log_std, lo, 2.0), soft_clip(pred_log_std, lo, 2.0)
 
     # --- the per-set negative ELBO ---------------------------------------------------------
-    def __call__(self, obs, prev_obs, actions, dim_mask, future, future_mask, context_mask, target_mask, key) -> dict:
+    def __call__(
+        self, obs, prev_obs, actions, dim_mask, future, future_mask, context_mask, target_mask, key
+    ) -> dict:
         """Terms of eq. 2 for ONE set (shapes of ``ObservationSets`` without the S axis).
 
         ``c`` is sampled from q_phi(c | elements where ``context_mask``); the per-element
@@ -257,13 +279,17 @@ class HVAE(nn.Module):
         recon = jnp.sum(gaussian_nll(obs, self.decode(z, c_m), obs_ls), -1)
         pred = jnp.sum(gaussian_nll(future, self.predict(z, c_m), pred_ls), -1)  # [m, t]
         pred = jnp.sum(jnp.where(future_mask, pred, 0.0), -1)
-        act = jnp.sum(jnp.where(dim_mask, gaussian_nll(actions, self.decode_action(z, c_m), act_ls), 0.0), -1)
+        act = jnp.sum(
+            jnp.where(dim_mask, gaussian_nll(actions, self.decode_action(z, c_m), act_ls), 0.0), -1
+        )
         return {"recon": recon, "pred": pred, "act": act, "kl_z": kl_z, "kl_c": kl_c}
 
 
 def _cat(z: jax.Array, c: jax.Array) -> jax.Array:
     batch = jnp.broadcast_shapes(z.shape[:-1], c.shape[:-1])
-    return jnp.concatenate([jnp.broadcast_to(z, (*batch, z.shape[-1])), jnp.broadcast_to(c, (*batch, c.shape[-1]))], -1)
+    return jnp.concatenate(
+        [jnp.broadcast_to(z, (*batch, z.shape[-1])), jnp.broadcast_to(c, (*batch, c.shape[-1]))], -1
+    )
 
 
 def split_context_target(sets: ObservationSets, key: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -292,10 +318,14 @@ def init_hvae(model: HVAE, key: jax.Array, sets: ObservationSets) -> dict:
     """Parameters of ``model`` (the ``"params"`` collection), shaped by one set of ``sets``."""
     key_init, key_sample = jax.random.split(key)
     one = jax.tree_util.tree_map(lambda x: x[0], sets)
-    return model.init(key_init, *_element_args(one), one.set_mask, one.set_mask, key_sample)["params"]
+    return model.init(key_init, *_element_args(one), one.set_mask, one.set_mask, key_sample)[
+        "params"
+    ]
 
 
-def hvae_loss(params: dict, model: HVAE, sets: ObservationSets, key: jax.Array) -> tuple[jax.Array, HVAEMetrics]:
+def hvae_loss(
+    params: dict, model: HVAE, sets: ObservationSets, key: jax.Array
+) -> tuple[jax.Array, HVAEMetrics]:
     """Negative ELBO of eq. 2 per observation, averaged over the S sets.
 
     Per set, with c ~ q_phi(c | context half) and the targets T (``split_context_target``):
@@ -313,11 +343,21 @@ def hvae_loss(params: dict, model: HVAE, sets: ObservationSets, key: jax.Array) 
     count = jnp.maximum(jnp.sum(w, -1), 1.0)  # [S]
     per_set = {k: jnp.sum(v * w, -1) / count for k, v in terms.items() if k != "kl_c"}
     kl_c = terms["kl_c"] / count
-    loss_s = per_set["recon"] + per_set["pred"] + cfg.action_recon_weight * per_set["act"] + cfg.kl_weight * (per_set["kl_z"] + kl_c)
+    loss_s = (
+        per_set["recon"]
+        + per_set["pred"]
+        + cfg.action_recon_weight * per_set["act"]
+        + cfg.kl_weight * (per_set["kl_z"] + kl_c)
+    )
     elbo_s = -(per_set["recon"] + per_set["pred"] + per_set["act"] + per_set["kl_z"] + kl_c)
     metrics = HVAEMetrics(
-        loss=jnp.mean(loss_s), elbo=jnp.mean(elbo_s), recon=jnp.mean(per_set["recon"]), pred=jnp.mean(per_set["pred"]),
-        act=jnp.mean(per_set["act"]), kl_z=jnp.mean(per_set["kl_z"]), kl_c=jnp.mean(kl_c),
+        loss=jnp.mean(loss_s),
+        elbo=jnp.mean(elbo_s),
+        recon=jnp.mean(per_set["recon"]),
+        pred=jnp.mean(per_set["pred"]),
+        act=jnp.mean(per_set["act"]),
+        kl_z=jnp.mean(per_set["kl_z"]),
+        kl_c=jnp.mean(kl_c),
     )
     return metrics.loss, metrics
 
@@ -346,6 +386,8 @@ def space_embeddings(model: HVAE, params: dict, sets: ObservationSets) -> jax.Ar
     """Posterior means of q_phi(c | O_i) over the whole sets: ``[S, c_dim]``."""
 
     def one(obs, set_mask, prev_obs, actions, dim_mask):
-        return model.apply({"params": params}, obs, set_mask, prev_obs, actions, dim_mask, method=HVAE.encode_space)[0]
+        return model.apply(
+            {"params": params}, obs, set_mask, prev_obs, actions, dim_mask, method=HVAE.encode_space
+        )[0]
 
     return jax.vmap(one)(sets.obs, sets.set_mask, sets.prev_obs, sets.actions, sets.dim_mask)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import flax.linen as nn
 import jax
@@ -10,8 +10,9 @@ import jax.numpy as jnp
 
 
 class ConcatDense(nn.Module):
-    """``nn.Dense`` of the concatenation of ``parts`` (the same params: ``kernel [sum d_i, features]``,
-    ``bias``), computed as a sum of each part times its row block of the kernel.
+    """``nn.Dense`` of the concatenation of ``parts`` (the same params:
+    ``kernel [sum d_i, features]``, ``bias``), computed as a sum of each part times its row block
+    of the kernel.
 
     Parts broadcast against each other on their leading axes, so a part shared by every agent
     (the state embedding e_o next to per-agent sub-actions) is multiplied once per sample
@@ -26,7 +27,7 @@ class ConcatDense(nn.Module):
         sizes = [p.shape[-1] for p in parts]
         kernel = self.param("kernel", self.kernel_init, (sum(sizes), self.features))
         out, i = self.param("bias", nn.initializers.zeros_init(), (self.features,)), 0
-        for part, size in zip(parts, sizes):
+        for part, size in zip(parts, sizes, strict=True):
             out = out + part @ kernel[i : i + size]
             i += size
         return out
@@ -56,7 +57,9 @@ class MLP(nn.Module):
         return dense(x)(self.out_dim, kernel_init=out_init, name="out")(x)
 
 
-def gaussian_head(raw: jax.Array, log_std_min: float = -6.0, log_std_max: float = 2.0) -> tuple[jax.Array, jax.Array]:
+def gaussian_head(
+    raw: jax.Array, log_std_min: float = -6.0, log_std_max: float = 2.0
+) -> tuple[jax.Array, jax.Array]:
     """Split ``[..., 2 d]`` into ``(mean [..., d], log_std [..., d])``.
 
     ``log_std`` is soft-clipped into ``[log_std_min, log_std_max]`` with two softplus

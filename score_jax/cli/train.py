@@ -1,0 +1,50 @@
+"""``score-train``: train SCORE (or a baseline) on a composite-action environment.
+
+score-train                                  # SCORE on the greenhouse, laptop-sized defaults
+score-train --env spider --total-steps 200000
+score-train --resume runs/greenhouse-score-s0
+score-train --help                           # every option
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import tyro
+
+from score_jax.evaluation.report import final_evaluation, plot_learning_curve, render_policy
+from score_jax.evaluation.robustness import run_sweep
+from score_jax.run.build import with_best_policy
+from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.config import TrainConfig
+from score_jax.run.driver import NonFiniteError, train
+
+
+def main(cfg: TrainConfig) -> int:
+    try:
+        run = train(cfg)
+    except (NonFiniteError, CheckpointError, ValueError, KeyError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(f"\nrun directory: {run.run_dir}")
+    curve = os.path.join(run.run_dir, "learning_curve.png")
+    plot_learning_curve(
+        os.path.join(run.run_dir, "metrics.csv"), curve, f"{run.config.algo} on {run.config.env}"
+    )
+    print(f"learning curve: {curve}")
+    final_evaluation(run, run.config.eval_episodes)
+    run = with_best_policy(run)  # the sweep and the render show the best-evaluated policy, if kept
+    if run.config.robustness_seeds:
+        run_sweep(run, run.config.robustness_seeds)
+    if run.config.render:
+        render_policy(run, run.config.render_steps, os.path.join(run.run_dir, "render"))
+    return 0
+
+
+def cli() -> int:
+    return main(tyro.cli(TrainConfig))
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,3 @@
+"""The evaluation layer, above the run layer: the end-of-run report (``report``), the one-call
+robustness sweep (``robustness``), transfer to unseen sub-spaces of a trained run
+(``transfer``), and aggregate statistics over seeds (``stats``)."""

@@ -1,0 +1,197 @@
+"""Robustness sweep (§5.2.3, §5.3.3, Figs. 7/9) in ONE jit-compiled call.
+
+For a trained policy: full evaluation episodes for every (number of failed sub-spaces
+0..n-1) x (failure mode default / random / last) x seed, with the failed sub-spaces redrawn
+at random every step. The settings are a flat batch of arrays and ``evaluate`` is vmapped
+over them, so the whole grid is one XLA program.
+
+    score-robustness --run-dir runs/greenhouse-score-s0      (score_jax.cli.robustness)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from score_jax.agents.base import ActFn
+from score_jax.core.failures import FailureMode
+from score_jax.run.checkpoint import dump_json
+from score_jax.run.episodes import evaluate
+from score_jax.run.sharding import make_data_mesh
+
+MODES = (FailureMode.DEFAULT, FailureMode.RANDOM, FailureMode.LAST)
+
+
+@struct.dataclass
+class SweepSettings:
+    """A flat batch of S evaluation settings: ``[S]`` arrays."""
+
+    n_failed: jax.Array
+    mode: jax.Array
+    seed: jax.Array
+
+
+def settings_grid(n_agents: int, n_seeds: int, modes=MODES) -> SweepSettings:
+    """Every (n_failed in 0..n_agents-1) x mode x seed, flattened in that order."""
+    f, m, s = np.meshgrid(
+        np.arange(n_agents), np.asarray([int(x) for x in modes]), np.arange(n_seeds), indexing="ij"
+    )
+    return SweepSettings(
+        jnp.asarray(f.ravel(), jnp.int32),
+        jnp.asarray(m.ravel(), jnp.int32),
+        jnp.asarray(s.ravel(), jnp.int32),
+    )
+
+
+def make_sweep(env, act_fn: ActFn, agent_index, episodes_per_setting: int = 1):
+    """``sweep(settings, base_key) -> returns [S, episodes_per_setting]`` — jit it once.
+
+    Each setting evaluates with key ``fold_in(base_key, seed)``: the same seed gives the same
+    initial states for every count and mode, so the curves differ only by the failures.
+    """
+
+    def one(n_failed, mode, seed, base_key):
+        key = jax.random.fold_in(base_key, seed)
+        return evaluate(env, act_fn, key, episodes_per_setting, agent_index, n_failed, mode).returns
+
+    def sweep(settings: SweepSettings, base_key):
+        return jax.vmap(one, in_axes=(0, 0, 0, None))(
+            settings.n_failed, settings.mode, settings.seed, base_key
+        )
+
+    return sweep
+
+
+def shard_settings(settings: SweepSettings, devices=None) -> SweepSettings:
+    """Spread the settings axis over all devices (a ``data`` mesh), so the one-call sweep uses
+    every device: on a CPU split into one XLA host device per core
+    (``XLA_FLAGS=--xla_force_host_platform_device_count=N``), every core. XLA partitions the
+    vmapped program along that axis; settings stay on one device when S is not a multiple of
+    the device count or there is only one device."""
+    devices = jax.devices() if devices is None else devices
+    if len(devices) < 2 or settings.n_failed.shape[0] % len(devices):
+        return settings
+    return jax.device_put(
+        settings,
+        jax.sharding.NamedSharding(make_data_mesh(devices), jax.sharding.PartitionSpec("data")),
+    )
+
+
+@dataclasses.dataclass
+class SweepTable:
+    """Statistics per (n_failed, mode) over seeds (and episodes)."""
+
+    n_failed: list[int]
+    modes: list[str]
+    mean: np.ndarray  # [counts, modes]
+    std: np.ndarray
+    min: np.ndarray
+    max: np.ndarray
+    returns: np.ndarray  # [counts, modes, seeds * episodes]
+
+    def to_dict(self) -> dict:
+        out = {"n_failed": self.n_failed, "modes": self.modes}
+        for name in ("mean", "std", "min", "max", "returns"):
+            out[name] = np.asarray(getattr(self, name)).tolist()
+        return out
+
+    def markdown(self) -> str:
+        head = "| failed | " + " | ".join(f"{m} mean ± std" for m in self.modes) + " |"
+        sep = "|---|" + "---|" * len(self.modes)
+        rows = [
+            f"| {c} | "
+            + " | ".join(
+                f"{self.mean[i, j]:.1f} ± {self.std[i, j]:.1f}" for j in range(len(self.modes))
+            )
+            + " |"
+            for i, c in enumerate(self.n_failed)
+        ]
+        return "\n".join([head, sep, *rows])
+
+
+def tabulate(
+    returns: np.ndarray, settings: SweepSettings, n_agents: int, n_seeds: int, modes=MODES
+) -> SweepTable:
+    r = np.asarray(returns).reshape(n_agents, len(modes), n_seeds * np.asarray(returns).shape[-1])
+    return SweepTable(
+        list(range(n_agents)),
+        [m.name.lower() for m in modes],
+        r.mean(-1),
+        r.std(-1),
+        r.min(-1),
+        r.max(-1),
+        r,
+    )
+
+
+def plot_sweep(table: SweepTable, path: str, title: str = "") -> None:
+    """Figs. 7/9 style: dot = mean, thick bar = std, thin bar = min..max, one colour per mode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {"default": "black", "random": "tab:blue", "last": "tab:red"}
+    fig, ax = plt.subplots(figsize=(7, 4))
+    x = np.asarray(table.n_failed, float)
+    for j, mode in enumerate(table.modes):
+        xs = x + (j - 1) * 0.18
+        c = colours.get(mode, None)
+        ax.vlines(xs, table.min[:, j], table.max[:, j], color=c, lw=1)
+        ax.vlines(
+            xs,
+            table.mean[:, j] - table.std[:, j],
+            table.mean[:, j] + table.std[:, j],
+            color=c,
+            lw=4,
+        )
+        ax.plot(xs, table.mean[:, j], "o", color=c, label=mode)
+    ax.set_xticks(x)
+    ax.set_xlabel("failed sub-action spaces (redrawn every step)")
+    ax.set_ylabel("episode return")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(title="failure mode")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
+    """Sweep a trained run (see ``run.build.restore_run``), write JSON + PNG into its directory."""
+    n = len(run.agent_index)
+    settings = shard_settings(settings_grid(n, n_seeds))
+    # The agent's state is an argument, not a constant of the program: XLA would otherwise
+    # constant-fold the networks into the executable (slow compiles, one per policy).
+    sweep = jax.jit(
+        lambda agent, settings, key: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(
+            settings, key
+        )
+    )
+    t0 = time.time()
+    returns = jax.block_until_ready(
+        sweep(run.state.agent, settings, jax.random.PRNGKey(run.config.seed + 30_000))
+    )
+    seconds = time.time() - t0
+    table = tabulate(returns, settings, n, n_seeds)
+    dump_json(
+        os.path.join(run.run_dir, "robustness.json"),
+        {**table.to_dict(), "n_seeds": n_seeds, "seconds": seconds},
+    )
+    plot_sweep(
+        table,
+        os.path.join(run.run_dir, "robustness.png"),
+        f"{run.config.algo} on {run.config.env}: robustness",
+    )
+    log(
+        f"robustness sweep: {settings.n_failed.shape[0]} settings x 1 episode in one call, "
+        f"{seconds:.1f} s (incl. compile)"
+    )
+    log(table.markdown())
+    return table

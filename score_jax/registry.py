@@ -1,0 +1,65 @@
+"""The algorithm registry: ``--algo NAME`` -> which section of the configuration the algorithm
+reads and its builder, imported on first use (listing the registry never imports brax).
+
+The command line's choices (``--algo``, ``--env``) are derived from this registry and the
+environment registry (``envs.registered_names``); ``register_algorithm`` adds one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+from score_jax.agents.base import Algorithm
+from score_jax.core.registry import LazyRegistry
+
+# builder(settings, ctx: agents.base.BuildContext, key) -> Algorithm
+Builder = Callable[..., Algorithm]
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgorithmEntry:
+    """``settings``: the ``TrainConfig`` field the builder receives (``score``, ``marl``,
+    ``single``); ``builder``: the builder or its ``"module:function"`` path;
+    ``in_process``: trained by the shared off-policy trainer (resumable), not brax's loop."""
+
+    settings: str
+    builder: Builder | str
+    in_process: bool = True
+
+
+_ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
+    "algorithm",
+    {
+        "score": AlgorithmEntry("score", "score_jax.agents.score.algorithm:make_score"),
+        "isac": AlgorithmEntry("marl", "score_jax.agents.marl.isac:make_isac"),
+        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg"),
+        "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac"),
+        "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix"),
+        "sac": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_sac", in_process=False),
+        "ppo": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_ppo", in_process=False),
+        "hppo": AlgorithmEntry("single", "score_jax.agents.brax.hppo:make_hppo", in_process=False),
+    },
+)
+
+
+def register_algorithm(name: str, entry: AlgorithmEntry) -> None:
+    """Add an algorithm (its builder may be a ``"module:function"`` path)."""
+    _ALGORITHMS.register(name, entry)
+
+
+def algorithm_names() -> list[str]:
+    return _ALGORITHMS.names()
+
+
+def entry(name: str) -> AlgorithmEntry:
+    """The registry entry of ``name`` (a ValueError lists the known names)."""
+    return _ALGORITHMS.get(name)
+
+
+def builder(name: str) -> Builder:
+    """The builder of ``name``, imported on first use."""
+    e = entry(name)
+    if isinstance(e.builder, str):
+        return LazyRegistry("builder", {name: e.builder}).get(name)
+    return e.builder

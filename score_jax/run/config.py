@@ -1,0 +1,236 @@
+"""Run configuration: frozen dataclasses exposed on the command line with tyro, and their
+resolution into the numbers a run uses.
+
+Shape-changing fields (network sizes, number of envs, batch size) are static; numbers that
+only scale arrays (learning rates, gamma, tau, DropNode rate) are fed as arrays where the
+compiled code allows it. ``None`` is the one spelling of "the environment's preset" (or "the
+default"); ``resolve`` turns a ``TrainConfig`` and the environment's hints into a ``RunSpec``
+once, at the start of a run, and everything below reads the ``RunSpec``.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import os
+
+import envs
+from score_jax import registry
+from score_jax.agents.brax.config import SingleAgentConfig
+from score_jax.agents.marl.config import MarlConfig
+from score_jax.agents.score.config import ScoreConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class OffPolicyConfig:
+    """The shared off-policy trainer: rollout, replay and update schedule (shape-changing fields
+    are static; the rest are fed as arrays where it matters)."""
+
+    num_envs: int = 8
+    """Parallel environments (the ``data`` axis)."""
+    batch_size: int = 128
+    """Transitions per gradient update."""
+    replay_capacity: int = 50_000
+    """Ring buffer size in transitions."""
+    learning_starts: int = 400
+    """Transitions collected with the uniform random policy before updates start."""
+    updates_per_step: int = 2
+    """Gradient updates per vectorised environment step."""
+    steps_per_epoch: int = 20
+    """Vectorised environment steps per jitted epoch call."""
+    train_failures: int = 0
+    """Controlled sub-spaces that fail at every collection step (redrawn each step; 0 = none).
+    The environment receives the failure-mode replacement and the critic masks those agents."""
+    train_failure_mode: int = 0
+    """Failure mode of ``train_failures``: 0 default, 1 random, 2 last (``FailureMode``)."""
+    exploration_hold: int | None = None
+    """Steps an environment keeps the same exploration noise (the policy's random draw, i.e. the
+    Gaussian noise and Gumbel draws relative to the current mean and logits), redrawn every
+    this many steps of its episode and at every reset, as gSDE's ``sde_sample_freq`` (Raffin et
+    al. 2021), counted in the environment's own steps (``EnvState.t``). 1 = fresh noise every
+    step; None = the environment's suggestion (``env.hints.exploration_hold``)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Train an algorithm on a composite-action environment (default: SCORE on the greenhouse)."""
+
+    env: str = "greenhouse"
+    """Environment name (a registered environment: greenhouse, spider, probe, or one added with
+    ``envs.register``)."""
+    algo: str = "score"
+    """Algorithm (``score_jax.registry``: score, isac, maddpg, maac, qmix, sac, ppo, hppo)."""
+    total_steps: int | None = None
+    """Decisions (transitions) to train for; None = the environment's preset."""
+    seed: int = 0
+    """Seed of every random stream (ASRL data, init, exploration, replay, evaluation)."""
+    run_dir: str | None = None
+    """Where checkpoints, metrics.csv and plots go; None = runs/<env>-<algo>-s<seed>."""
+    resume: str | None = None
+    """Resume the run in this directory from its latest checkpoint (the saved config is used)."""
+    subspaces: str | None = None
+    """Comma-separated sub-spaces to control (the others stay at their defaults); None = all."""
+    env_options: tuple[str, ...] = ()
+    """Environment options as key=value (e.g. reward=profit discrete_hours=False)."""
+    checkpoint_every: int | None = None
+    """Save a checkpoint every this many decisions; None = about 10 per run."""
+    action_repeat: int | None = None
+    """Environment steps one decision is held for (``envs.wrappers.ActionRepeat``); None = the
+    environment's suggestion (greenhouse: 8 days, others 1). Step counts (``--total-steps``,
+    ``--eval-every``, replay) count decisions; returns always sum the environment's rewards."""
+    action_width: int | None = None
+    """Padded action width of every agent; None = the environment's full max_dim (so transfer
+    can add sub-spaces of any width)."""
+    eval_episodes: int = 10
+    """Episodes per evaluation (each a full season / episode)."""
+    eval_every: int | None = None
+    """Evaluate the deterministic policy every this many decisions; None = the environment's
+    preset (greenhouse: every 16k, spider: 20k), 0 = only at the end."""
+    keep_best: bool = True
+    """Keep the best-evaluated policy in <run-dir>/best and report it next to the last one (the
+    end-of-run robustness sweep and render use it); needs periodic evaluations."""
+    robustness_seeds: int = 10
+    """Seeds per setting of the robustness sweep run at the end (0 = skip it)."""
+    render: bool = False
+    """Spider only: render an episode of the trained policy to <run-dir>/render (PNG + GIF)."""
+    render_steps: int = 300
+    """Steps of the rendered episode."""
+    quiet: bool = False
+    """No progress bar."""
+    data_parallel: bool = True
+    """Shard environments and batches over all devices when there are several."""
+    off_policy: OffPolicyConfig = OffPolicyConfig()
+    """Rollout, replay and update schedule."""
+    score: ScoreConfig = ScoreConfig()
+    """SCORE networks, ASRL and SAC settings."""
+    marl: MarlConfig = MarlConfig()
+    """Multi-agent baselines (isac, maddpg, maac, qmix): sizes, learning rates, exploration."""
+    single: SingleAgentConfig = SingleAgentConfig()
+    """Single-agent baselines trained by brax (sac, ppo, hppo) and the transfer variant of
+    fixed-width baselines."""
+
+    def env_overrides(self) -> dict:
+        """``env_options`` parsed into keyword overrides (values as Python literals when
+        possible)."""
+        out = {}
+        for item in self.env_options:
+            if "=" not in item:
+                raise ValueError(f"env option {item!r} must look like key=value")
+            key, value = item.split("=", 1)
+            try:
+                out[key] = ast.literal_eval(value)
+            except (ValueError, SyntaxError):
+                out[key] = value
+        return out
+
+    def agent_names(self) -> tuple[str, ...]:
+        """The sub-spaces named by ``subspaces`` (empty: all of them)."""
+        if self.subspaces is None:
+            return ()
+        return tuple(x.strip() for x in self.subspaces.split(",") if x.strip())
+
+    def algorithm_settings(self):
+        """This run's section of the configuration for its algorithm's builder."""
+        return getattr(self, registry.entry(self.algo).settings)
+
+
+@dataclasses.dataclass(frozen=True)
+class TransferSpec:
+    """A fine-tuning run grown from a trained run (§4.3), set by ``transfer.py``.
+
+    ``source``: the trained run's directory; ``new``: the sub-spaces that are new (their actors
+    train from scratch); ``finetune_old_actors``: also fine-tune the actors seen before.
+    """
+
+    source: str
+    new: tuple[str, ...]
+    finetune_old_actors: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """The numbers a run uses, resolved once from its ``TrainConfig`` and environment.
+
+    Attributes:
+      run_dir: where everything goes.
+      total_steps, eval_every, checkpoint_every: decisions (steps of the action-repeated env).
+      action_repeat: environment steps per decision; exploration_hold: steps an exploration
+        draw is held; width: the agents' padded action width.
+      steps_per_epoch: decisions per jitted epoch of the off-policy trainer.
+    """
+
+    run_dir: str
+    total_steps: int
+    eval_every: int
+    checkpoint_every: int
+    action_repeat: int
+    exploration_hold: int
+    width: int
+    steps_per_epoch: int
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def default_run_dir(cfg: TrainConfig) -> str:
+    return cfg.run_dir or os.path.join("runs", f"{cfg.env}-{cfg.algo}-s{cfg.seed}")
+
+
+def resolve(cfg: TrainConfig, env) -> RunSpec:
+    """``cfg``'s presets resolved against ``env`` (the environment before any action repeat)."""
+    hints = env.hints
+    total = hints.total_steps if cfg.total_steps is None else cfg.total_steps
+    repeat = hints.action_repeat if cfg.action_repeat is None else cfg.action_repeat
+    if repeat < 1:
+        raise ValueError(f"action_repeat must be >= 1, got {repeat}")
+    hold = (
+        hints.exploration_hold
+        if cfg.off_policy.exploration_hold is None
+        else cfg.off_policy.exploration_hold
+    )
+    if hold < 1:
+        raise ValueError(f"exploration_hold must be >= 1, got {hold}")
+    width = env.space.max_dim if cfg.action_width is None else cfg.action_width
+    if width < env.space.max_dim:
+        raise ValueError(
+            f"action_width={width} is smaller than the environment's max_dim={env.space.max_dim}"
+        )
+    spe = cfg.off_policy.num_envs * cfg.off_policy.steps_per_epoch
+    ckpt = (
+        cfg.checkpoint_every
+        if cfg.checkpoint_every is not None
+        else max(spe, (total // 10) // spe * spe)
+    )
+    return RunSpec(
+        run_dir=default_run_dir(cfg),
+        total_steps=int(total),
+        eval_every=int(hints.eval_every if cfg.eval_every is None else cfg.eval_every),
+        checkpoint_every=int(ckpt),
+        action_repeat=int(repeat),
+        exploration_hold=int(hold),
+        width=int(width),
+        steps_per_epoch=int(spe),
+    )
+
+
+def environment_names() -> list[str]:
+    return envs.registered_names()
+
+
+def to_dict(cfg) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def from_dict(cls, d: dict):
+    """Rebuild a (nested) frozen dataclass from ``to_dict`` output, ignoring unknown keys."""
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in d:
+            continue
+        value = d[f.name]
+        if dataclasses.is_dataclass(f.default) and isinstance(value, dict):
+            value = from_dict(type(f.default), value)
+        elif isinstance(value, list):
+            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        kwargs[f.name] = value
+    return cls(**kwargs)

@@ -1,0 +1,170 @@
+"""The Python driver of a training run: set-up, the off-policy epochs, checkpoints, evaluation.
+
+Everything numeric happens inside the jitted epoch (``run.trainer``); this loop only moves one
+small metrics struct to the host per epoch. Reliability:
+- a checkpoint (the whole ``TrainState`` + config + space spec) every ``checkpoint_every``
+  decisions and at the end; ``--resume RUN_DIR`` continues bit-exactly from the latest one;
+- a non-finite loss or parameter stops the run with a message and keeps the last good
+  checkpoint (nothing after it is saved).
+Algorithms that train inside brax (``Algorithm.train_external``: sac, ppo, hppo) are handed
+to ``run.external.fit_external``, which checkpoints their final policy and refuses ``--resume``.
+Both loops record their rows through one ``RunRecorder``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Callable
+
+import jax
+import numpy as np
+
+from score_jax.run.build import Run, build, saved_transfer
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
+from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_dict, to_dict
+from score_jax.run.external import RESUME_ERROR, fit_external
+from score_jax.run.recorder import NonFiniteError, RunRecorder
+from score_jax.run.trainer import TrainState
+
+__all__ = ["NonFiniteError", "Run", "train"]
+
+# Columns every off-policy row has, before the algorithm's own metrics.
+BASE_COLUMNS = ("updates", "wall_s", "episode_return", "reward_mean", "eval_return")
+
+
+def _epoch_row(state: TrainState, metrics) -> dict:
+    m = jax.device_get(metrics)
+    done = float(m.completed_episodes)
+    row = {
+        "updates": int(state.updates),
+        "episode_return": float(m.completed_return_sum) / done if done else math.nan,
+        "reward_mean": float(m.reward_mean),
+    }
+    row.update({name: float(value) for name, value in sorted(m.agent.items())})
+    return row
+
+
+def _metric_columns(run: Run) -> list[str]:
+    """``BASE_COLUMNS`` then the algorithm's own metrics, by name."""
+    if run.algo.train_external is not None:
+        return [*BASE_COLUMNS, *[n for n in run.algo.metric_names if n not in BASE_COLUMNS]]
+    shapes = jax.eval_shape(
+        run.trainer.epoch, run.trainer.init(jax.random.PRNGKey(0)), run.algo.off_policy.hyper
+    )[1]
+    return [*BASE_COLUMNS, *sorted(shapes.agent)]
+
+
+def train(
+    cfg: TrainConfig,
+    log=print,
+    on_epoch: Callable | None = None,
+    initial_agent: Callable | None = None,
+    transfer: TransferSpec | None = None,
+) -> Run:
+    """Train (or resume) a run; returns the final ``Run``.
+
+    ``initial_agent(run, fresh_agent_state) -> agent_state`` replaces the freshly initialised
+    algorithm state of a new run (transfer grows it from a trained run, with ``transfer``
+    saying which sub-spaces are new); ``on_epoch(run, row)`` is called after every metrics row.
+    """
+    if cfg.resume:
+        meta = Checkpointer(cfg.resume).read_meta()
+        saved = from_dict(TrainConfig, meta["config"])
+        cfg = dataclasses.replace(saved, resume=cfg.resume, run_dir=cfg.resume, quiet=cfg.quiet)
+        transfer = saved_transfer(meta)
+    run_dir = default_run_dir(cfg)
+    os.makedirs(run_dir, exist_ok=True)
+    key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
+
+    run = build(
+        cfg,
+        key_build,
+        run_dir,
+        restoring=bool(cfg.resume) or initial_agent is not None,
+        log=log,
+        transfer=transfer,
+    )
+    ckpt = Checkpointer(run_dir)
+    external = run.algo.train_external is not None
+    if cfg.resume and external:
+        raise CheckpointError(RESUME_ERROR.format(algo=cfg.algo, run_dir=run_dir))
+    if not cfg.resume and ckpt.latest_step() is not None:
+        raise CheckpointError(
+            f"{run_dir} already holds a run; pass --resume {run_dir} to continue it "
+            "or choose another --run-dir"
+        )
+    if not cfg.resume:
+        dump_json(
+            os.path.join(run_dir, "config.json"),
+            {**to_dict(cfg), "resolved": run.spec.to_dict(), "transfer": run.meta()["transfer"]},
+        )
+
+    if external:
+        recorder = _recorder(run, None, log, on_epoch)
+        return fit_external(run, recorder, ckpt, key_train, log=log, initial_agent=initial_agent)
+
+    state = run.trainer.init(key_train)
+    if initial_agent is not None and not cfg.resume:
+        state = run.trainer.place(state.replace(agent=initial_agent(run, state.agent)))
+    if cfg.resume:
+        state, meta = ckpt.restore(state)
+        check_space_matches(meta, cfg.env, run.env.space)
+        state = run.trainer.place(state)
+        log(f"resumed {run_dir} at env step {int(state.env_steps)}")
+    run.state = state
+    recorder = _recorder(run, int(state.env_steps) if cfg.resume else None, log, on_epoch)
+    return _fit_off_policy(run, recorder, ckpt)
+
+
+def _recorder(run: Run, resume_from: int | None, log, on_epoch) -> RunRecorder:
+    keep = run.config.keep_best and bool(run.spec.eval_every)
+    on_row = None if on_epoch is None else (lambda row: on_epoch(run, row))
+    return RunRecorder(
+        run.run_dir,
+        _metric_columns(run),
+        run.spec.total_steps,
+        run.config.quiet,
+        run.meta(),
+        keep,
+        resume_from,
+        log,
+        on_row,
+    )
+
+
+def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
+    """The off-policy epochs until ``spec.total_steps`` decisions, with periodic evaluations and
+    checkpoints."""
+    spec, cfg = run.spec, run.config
+    state = run.state
+    meta = run.meta()
+    spe, eval_every = spec.steps_per_epoch, spec.eval_every
+    last_ckpt = int(state.env_steps)
+    hyper = run.algo.off_policy.hyper
+    while int(state.env_steps) < spec.total_steps:
+        state, metrics = run.trainer.epoch(state, hyper)
+        if not bool(metrics.finite):
+            ckpt.close()
+            recorder.close()
+            raise NonFiniteError(
+                f"non-finite loss or parameter at env step {int(state.env_steps)}; stopped. "
+                f"The last good checkpoint (env step {last_ckpt}) is kept in {ckpt.directory}."
+            )
+        steps = int(state.env_steps)
+        row = _epoch_row(state, metrics)
+        if eval_every and steps // eval_every != (steps - spe) // eval_every:
+            row["eval_return"] = float(
+                np.mean(run.evaluate(state.agent, n_episodes=cfg.eval_episodes).returns)
+            )
+        run.state = state
+        recorder.record(steps, row, state.agent)
+        if steps - last_ckpt >= spec.checkpoint_every:
+            ckpt.save(steps, state, meta)
+            last_ckpt = steps
+    if last_ckpt != int(state.env_steps):
+        ckpt.save(int(state.env_steps), state, meta)
+    recorder.close()
+    ckpt.close()
+    return run
