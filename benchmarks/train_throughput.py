@@ -44,7 +44,7 @@ def score_throughput(
         ),
         score=ScoreConfig(asrl_steps=10),
     )
-    run = build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None)
+    run = build(cfg, jax.random.PRNGKey(0), "/tmp/unused", log=lambda *a: None).for_seed(0)
     state = run.trainer.init(jax.random.PRNGKey(1))
     hyper = run.algo.off_policy.hyper
     t = time.time()

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from score_jax.agents.base import Algorithm
 from score_jax.core.registry import LazyRegistry
 
-# builder(settings, ctx: agents.base.BuildContext, key) -> Algorithm
+# builder(settings, ctx: agents.base.BuildContext) -> Algorithm
 Builder = Callable[..., Algorithm]
 
 

@@ -110,7 +110,8 @@ def test_learns_the_probe_and_reports(trained, algo):
     """Trains through train_loop without NaN and beats the default policy in train.py's final
     evaluation (which, like the robustness sweep, reads ``algo.policy``)."""
     run = trained(algo)
-    assert int(run.state.updates) > 0 and int(run.state.env_steps) == STEPS[algo]
+    one = run.for_seed(0)
+    assert int(one.state.updates) > 0 and int(one.state.env_steps) == STEPS[algo]
     rows = final_evaluation(run, 16, log=lambda *a: None)
     per_step = rows[algo]["mean"] / run.env.episode_length
     assert per_step > THRESHOLD[algo] > rows["default"]["mean"] / run.env.episode_length, rows
@@ -127,7 +128,7 @@ def test_resume_equals_uninterrupted(trained, algo, tmp_path):
         copy / "checkpoints" / str(STEPS[algo])
     )  # as if killed after the mid-run checkpoint
     resumed = train(dataclasses.replace(run.config, resume=str(copy)), log=lambda *a: None)
-    assert int(resumed.state.env_steps) == STEPS[algo]
+    assert int(resumed.for_seed(0).state.env_steps) == STEPS[algo]
     jax.tree.map(
         np.testing.assert_array_equal,
         jax.device_get(resumed.state.agent),
@@ -139,8 +140,9 @@ def test_resume_equals_uninterrupted(trained, algo, tmp_path):
 def test_masks_and_schedules_do_not_recompile(trained, algo):
     """Agent validity, failed sub-spaces (replay ``active``) and exploration schedules are arrays
     of the epoch."""
-    run = trained(algo)
+    run = trained(algo).for_seed(0)
     epoch, state = run.trainer.epoch, run.state
+    epoch(state, run.algo.off_policy.hyper)  # compiled once; nothing below may compile again
     compiled = epoch._cache_size()
     active = jax.random.bernoulli(jax.random.PRNGKey(1), 0.7, state.buffer.data.active.shape)
     for valid in ([True, False, True], [False, True, True]):
@@ -163,7 +165,7 @@ def test_masks_and_schedules_do_not_recompile(trained, algo):
 def test_isac_masked_agent_gets_zero_gradient(trained):
     """Independent learners: a masked agent's actor and critic get exactly zero gradient, the
     others do not."""
-    run = trained("isac")
+    run = trained("isac").for_seed(0)
     nets, state, batch = run.algo.networks, run.state.agent, _batch(run)
     mask = jnp.broadcast_to(jnp.array([True, False, True]), (32, 3))
     hyper, key = run.algo.off_policy.hyper, jax.random.PRNGKey(0)
@@ -254,7 +256,7 @@ def test_per_agent_sac_losses_by_hand():
 def test_maddpg_critic_zeroes_masked_agents(trained):
     """The centralised critic never sees a masked agent's sub-action (even NaN); that actor gets
     zero gradient."""
-    run = trained("maddpg")
+    run = trained("maddpg").for_seed(0)
     nets, state, batch = run.algo.networks, run.state.agent, _batch(run)
     mask = jnp.broadcast_to(jnp.array([True, False, True]), (32, 3))
     q_fn = jax.jit(nets.q_fn)
@@ -281,7 +283,7 @@ def test_maddpg_critic_zeroes_masked_agents(trained):
 
 
 def test_maac_attention_masks_and_permutation_equivariance(trained):
-    run = trained("maac")
+    run = trained("maac").for_seed(0)
     nets, state, batch = run.algo.networks, run.state.agent, _batch(run, 8)
     mask = jnp.broadcast_to(jnp.array([True, False, True]), (8, 3))
     apply = jax.jit(nets.critic_apply)
@@ -319,7 +321,7 @@ def test_maac_attention_masks_and_permutation_equivariance(trained):
 
 
 def test_qmix_mixer_is_monotonic_and_ignores_masked_agents(trained):
-    run = trained("qmix")
+    run = trained("qmix").for_seed(0)
     nets, state, batch = run.algo.networks, run.state.agent, _batch(run, 16)
     mask = jnp.broadcast_to(jnp.array([True, False, True]), (16, 3))
     # sum over samples: each Q_tot depends on its own row only, so the gradient is per sample
@@ -344,7 +346,7 @@ def test_qmix_mixer_is_monotonic_and_ignores_masked_agents(trained):
 def test_qmix_candidates_are_what_the_env_and_replay_see(trained):
     """Row 0 is the default, discrete dims lie on their grid, and every action an active agent
     stored after the random warm-up is exactly a candidate (so the TD index is exact)."""
-    run = trained("qmix")
+    run = trained("qmix").for_seed(0)
     space = run.env.space
     cands, valid = candidate_table(space, np.arange(3), 3, 32, 0.6)
     np.testing.assert_array_equal(
@@ -372,7 +374,7 @@ def test_transfer_grows_the_agent_axis(trained, algo, tmp_path):
     have exactly the shapes of a real {a, b} run), the template a changed copy: old agents keep
     their rows, c takes the template's, shared parts (MAAC attention, QMIX mixer) stay; the
     critic (QMIX: Q_tot) is unchanged while c is masked; fine-tuning freezes the old agents."""
-    run = trained(algo)
+    run = trained(algo).for_seed(0)
     full = run.state.agent
     if algo == "qmix":
         src = full.replace(params=_rows(full.params, [0, 1]), target=_rows(full.target, [0, 1]))

@@ -273,7 +273,9 @@ def test_compare_runs_plain_subset_and_transfer_and_writes_tables_and_curves(tmp
     for png in ("compare_probe.png", "compare_probe_transfer.png"):
         assert (tmp_path / "out" / png).stat().st_size > 10_000
 
-    subset = restore_run(str(tmp_path / "work" / "probe" / "h-ppo-plain-subset" / "s0"), log=silent)
+    subset = restore_run(
+        str(tmp_path / "work" / "probe" / "h-ppo-plain-subset" / "s0"), log=silent
+    ).for_seed(0)
     initial = subset.trainer.init(
         jax.random.split(jax.random.PRNGKey(0))[1]
     ).agent  # what brax started from (seed 0)
@@ -285,7 +287,7 @@ def test_compare_runs_plain_subset_and_transfer_and_writes_tables_and_curves(tmp
     )
     grown = restore_run(
         str(tmp_path / "work" / "probe" / "h-ppo-plain-transfer" / "s0"), log=silent
-    )
+    ).for_seed(0)
     assert list(grown.agent_index) == [0, 1, 2] and grown.transfer.new == ("c",)
     assert all(
         _changed(_head(grown.state.agent, i), _head(subset.state.agent, i)) for i in range(3)

@@ -34,8 +34,8 @@ def test_best_is_the_argmax_of_the_periodic_evaluations(run_with_evals):
     steps, returns = _evaluations(run_with_evals)
     assert len(returns) == 5  # 1000 steps, one evaluation every 200
     best = BestPolicy(run_with_evals.run_dir, fresh=False)  # what a resumed run starts from
-    assert best.step == steps[np.argmax(returns)]
-    assert best.eval_return == pytest.approx(returns.max())
+    assert best.steps[0] == steps[np.argmax(returns)]
+    assert best.returns[0] == pytest.approx(returns.max())
     best.close()
 
 
@@ -48,7 +48,7 @@ def test_restored_best_policy_scores_its_recorded_return(run_with_evals):
         jax.device_get(agent.actor),
     )
     again = float(np.mean(run.evaluate(run.state.agent, n_episodes=4).returns))
-    assert again == pytest.approx(meta["eval_return"], rel=1e-5)
+    assert again == pytest.approx(meta["best_returns"][0], rel=1e-5)
     last = restore_run(run_with_evals.run_dir, log=SILENT, policy="last")
     jax.tree.map(
         np.testing.assert_array_equal,
@@ -61,7 +61,7 @@ def test_restored_best_policy_scores_its_recorded_return(run_with_evals):
 
 def test_report_shows_last_and_best(run_with_evals):
     rows = final_evaluation(run_with_evals, 4, log=SILENT)
-    step = BestPolicy(run_with_evals.run_dir, fresh=False).step
+    step = BestPolicy(run_with_evals.run_dir, fresh=False).steps[0]
     assert set(rows) >= {"score", f"score (best, step {step})", "random", "default"}
 
 
@@ -72,6 +72,8 @@ def test_a_new_run_does_not_inherit_an_old_best(tmp_path):
     stale.close()
     assert has_best(str(run_dir))
     fresh = BestPolicy(str(run_dir), fresh=True)
-    assert fresh.step is None and fresh.eval_return == float("-inf") and not has_best(str(run_dir))
-    assert not fresh.offer(6, float("nan"), {"w": np.zeros(3)}, {})
+    assert (
+        fresh.steps == [None] and fresh.returns[0] == float("-inf") and not has_best(str(run_dir))
+    )
+    assert not fresh.offer(6, float("nan"), {"w": np.zeros(3)}, {}).any()
     fresh.close()

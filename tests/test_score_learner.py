@@ -29,7 +29,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 def finished_run(tmp_path_factory):
     """An uninterrupted tiny run (1000 steps, checkpoints every 400)."""
     run_dir = tmp_path_factory.mktemp("runs") / "uninterrupted"
-    return train(tiny_config(run_dir), log=lambda *a: None)
+    return train(tiny_config(run_dir), log=lambda *a: None).for_seed(0)
 
 
 def _params(state):
@@ -38,7 +38,7 @@ def _params(state):
 
 def test_run_writes_metrics_and_checkpoints(finished_run):
     rows = open(os.path.join(finished_run.run_dir, "metrics.csv")).read().splitlines()
-    assert rows[0].startswith("env_steps,updates") and len(rows) == 1 + 1000 // 200
+    assert rows[0].startswith("env_steps,seed,updates") and len(rows) == 1 + 1000 // 200
     assert Checkpointer(finished_run.run_dir).latest_step() == 1000
     assert int(finished_run.state.updates) > 0
 
@@ -124,7 +124,7 @@ def test_sigkill_then_resume_equals_uninterrupted(finished_run, tmp_path):
     )
     assert out.returncode == 0, out.stderr[-3000:]
     assert f"resumed {run_dir} at env step {killed_at}" in out.stdout
-    resumed = restore_run(str(run_dir), log=lambda *a: None)
+    resumed = restore_run(str(run_dir), log=lambda *a: None).for_seed(0)
     assert int(resumed.state.env_steps) == 1000
     jax.tree.map(np.testing.assert_array_equal, _params(resumed.state), _params(finished_run.state))
     rows = open(run_dir / "metrics.csv").read().splitlines()
@@ -176,7 +176,7 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tmp_path):
     )  # updates start in the second epoch (at 400 steps); it went NaN
     template = build(
         cfg, jax.random.PRNGKey(0), str(tmp_path / "nan"), restoring=True, log=lambda *a: None
-    ).trainer.init(jax.random.PRNGKey(1))
+    ).trainer.init(jnp.stack([jax.random.PRNGKey(1)]))
     state, _ = ckpt.restore(template)
     assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(jax.device_get(state.agent.actor)))
 

@@ -23,7 +23,7 @@ from tests.tiny import tiny_config
 def subset_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("transfer") / "subset"
     train(tiny_config(run_dir, subspaces="a,b", total_steps=600), log=lambda *a: None)
-    return restore_run(str(run_dir), log=lambda *a: None)
+    return restore_run(str(run_dir), log=lambda *a: None).for_seed(0)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +39,7 @@ def grown(subset_run):
         restoring=True,
         log=lambda *a: None,
         transfer=spec,
-    )
+    ).for_seed(0)
     new_c = embed_new(subset_run.state.agent, run.algo.networks, run.env, p, jax.random.PRNGKey(3))
     template = run.trainer.init(jax.random.PRNGKey(1)).agent
     return run, p, grow_agent(subset_run.state.agent, template, p, new_c, jax.random.PRNGKey(2))
@@ -126,7 +126,7 @@ def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path):
     assert saved["initial"] == result["initial"]
     assert (out / "transfer.png").stat().st_size > 10_000
     # the fine-tuned run is an ordinary run over all sub-spaces: it restores and evaluates
-    restored = restore_run(str(out), log=lambda *a: None)
+    restored = restore_run(str(out), log=lambda *a: None).for_seed(0)
     assert list(restored.agent_index) == [0, 1, 2] and int(restored.state.env_steps) == 400
 
 

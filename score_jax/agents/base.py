@@ -1,7 +1,7 @@
 """The agents layer's interfaces: what an algorithm hands to the run layer, and what the run
 layer hands to an algorithm's builder.
 
-An algorithm is built by ``builder(settings, ctx, key) -> Algorithm``, where ``settings`` is
+An algorithm is built by ``builder(settings, ctx) -> Algorithm``, where ``settings`` is
 its own section of the configuration (``ScoreConfig``, ``MarlConfig``, ``SingleAgentConfig``)
 and ``ctx`` a ``BuildContext`` of numbers the run resolved once. The run layer then drives
 ``Algorithm.off_policy`` with the shared off-policy trainer, or calls ``train_external`` for
@@ -34,14 +34,16 @@ CriticKind = Literal["centralised", "per_agent"]
 class OffPolicyAlgorithm(NamedTuple):
     """What the shared off-policy trainer needs from an algorithm.
 
-    ``init(key) -> state``; ``act(state, obs[B, obs], key, deterministic) -> action[B, n, w]``;
+    ``init(key, frozen=None) -> state`` (``frozen``: one seed's output of
+    ``Algorithm.pretrain``; None: its template, e.g. a state to restore a checkpoint into);
+    ``act(state, obs[B, obs], key, deterministic) -> action[B, n, w]``;
     ``update(state, batch: Transition[B], key, hyper) -> (state, metrics: dict[str, []])``;
     ``hyper`` is a pytree of arrays (fed to every epoch, so changing it never recompiles).
     Every entry of the update's metrics dict reaches ``metrics.csv`` under its own name.
     """
 
     name: str
-    init: Callable[[jax.Array], Any]
+    init: Callable[..., Any]
     act: Callable[..., jax.Array]
     update: Callable[..., tuple[Any, dict]] | None
     hyper: Any
@@ -64,6 +66,10 @@ class Algorithm:
     grows a trained run's agent axis by unseen sub-spaces (§4.3); None for an algorithm whose
     networks are tied to a fixed set of sub-spaces. ``embed_new(source_agent_state, env, plan,
     key)`` (SCORE) embeds the new sub-spaces before growing.
+    ``pretrain(keys [K, 2]) -> frozen``: representation learning before training (SCORE's
+    ASRL), for all K seeds at once (a leading K axis on every leaf of ``frozen``); None when
+    the algorithm has none. ``frozen_template() -> frozen``: one seed's ``frozen`` shapes
+    without computing it (restoring a checkpoint fills it in).
     ``train_external`` is set by algorithms that run their own training loop (brax SAC / PPO,
     H-PPO); then ``off_policy`` only supplies ``init`` (the saved state's template), ``act``,
     ``n_agents`` and ``width``. ``metric_names`` lists the metrics ``train_external`` reports.
@@ -76,6 +82,8 @@ class Algorithm:
     grow: Callable[..., Any] | None = None
     train_external: ExternalTrainFn | None = None
     metric_names: tuple[str, ...] = ()
+    pretrain: Callable[[jax.Array], Any] | None = None
+    frozen_template: Callable[[], Any] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,7 +102,6 @@ class BuildContext:
       updates_per_step: gradient updates per vectorised step of the off-policy trainer.
       trainable: in a transfer run (§4.3), ``[n_agents]`` True for the agents whose actors
         train (new sub-spaces, or all with ``finetune_old_actors``); None in an ordinary run.
-      pretrain: run representation learning (SCORE's ASRL); False when the state is restored.
       log: where builders report progress.
     """
 
@@ -108,7 +115,6 @@ class BuildContext:
     num_envs: int = 8
     updates_per_step: int = 1
     trainable: np.ndarray | None = None
-    pretrain: bool = True
     log: Callable[[str], None] = print
 
     @property

@@ -13,7 +13,8 @@ import sys
 
 import tyro
 
-from score_jax.evaluation.report import final_evaluation, plot_learning_curve, render_policy
+from score_jax.evaluation.curves import plot_learning_curve
+from score_jax.evaluation.report import final_evaluation, render_policy
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import with_best_policy
 from score_jax.run.checkpoint import CheckpointError

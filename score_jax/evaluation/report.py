@@ -1,55 +1,77 @@
-"""End-of-run report: the learned policy against reference policies, and the learning curve."""
+"""End-of-run report: the learned policies (every seed) against the reference policies, and
+the rendering of a trained Spider."""
 
 from __future__ import annotations
 
-import csv
 import os
 
 import jax
 import numpy as np
 
 from score_jax.core.spaces import agents_to_env_action
+from score_jax.evaluation.stats import aggregate, format_interval
 from score_jax.run.best_policy import has_best, restore_best
+from score_jax.run.build import with_best_policy
 from score_jax.run.checkpoint import dump_json
 from score_jax.run.episodes import evaluate, reference_policies
 
 
 def final_evaluation(run, n_episodes: int, log=print) -> dict:
-    """Mean/std return of the trained policy (the last one, and the best-evaluated one when the
-    run kept it) and of each reference, over the same seeds; printed as a table and written to
-    ``evaluation.json``."""
-    key = jax.random.PRNGKey(run.config.seed + 20_000)
+    """Returns of the trained policies (the last, and the best-evaluated ones when the run kept
+    them) and of each reference policy; printed as a table and written to ``evaluation.json``.
+
+    Every seed's policy is evaluated on ``n_episodes`` episodes (one vmapped call); a learned row
+    holds the mean, std, min and max over all of them, the per-seed means, and their IQM, mean
+    and median with 95% stratified-bootstrap intervals (``evaluation.stats``). The references
+    are evaluated once, on the first seed's episodes.
+    """
+    keys = run.eval_keys(20_000)
     learned = {run.config.algo: run.state.agent}
     if has_best(run.run_dir):
-        agent, meta = restore_best(run.run_dir, run.state.agent)
-        learned[f"{run.config.algo} (best, step {meta['step']})"] = agent
+        best = with_best_policy(run, log=lambda *a: None).state.agent
+        _, meta = restore_best(run.run_dir, run.state.agent)
+        steps = [s for s in meta["best_steps"] if s is not None]
+        label = f"step {steps[0]}" if run.num_seeds == 1 and steps else "per seed"
+        learned[f"{run.config.algo} (best, {label})"] = best
     rows = {}
     for name, agent in learned.items():  # one compiled evaluator, the parameters an argument
-        r = np.asarray(run.evaluate(agent, n_episodes, key=key).returns)
-        rows[name] = _stats(r)
-    for name, act in reference_policies(
-        run.env, run.agent_index, run.algo.off_policy.width
-    ).items():
-        r = np.asarray(
-            jax.jit(
-                lambda k, act=act: evaluate(run.env, act, k, n_episodes, run.agent_index).returns
-            )(key)
-        )
-        rows[name] = _stats(r)
-    width = max(10, *(len(k) for k in rows))
-    lines = [
-        f"{'policy':<{width}s} {'return mean':>12s} {'std':>9s} {'min':>10s} {'max':>10s}   "
-        f"({n_episodes} episodes)"
-    ]
-    lines += [
-        f"{k:<{width}s} {v['mean']:12.2f} {v['std']:9.2f} {v['min']:10.2f} {v['max']:10.2f}"
-        for k, v in rows.items()
-    ]
-    log("\n".join(lines))
+        r = np.asarray(run.evaluate(agent, n_episodes, key=keys).returns).reshape(run.num_seeds, -1)
+        rows[name] = {**_stats(r), "per_seed": r.mean(axis=1).tolist(), "seeds": list(run.seeds)}
+        if run.num_seeds > 1:
+            agg = aggregate({name: r.mean(axis=1)}, reps=10_000, seed=run.config.seed)[name]
+            rows[name]["over_seeds"] = {
+                m: _interval(agg.metric(m)) for m in ("iqm", "mean", "median")
+            }
+    key = keys if not run.batched else keys[0]
+    width = run.algo.off_policy.width
+    for name, act in reference_policies(run.env, run.agent_index, width).items():
+        episodes = lambda k, act=act: evaluate(run.env, act, k, n_episodes, run.agent_index)
+        rows[name] = _stats(np.asarray(jax.jit(episodes)(key).returns))
+    log(_table(rows, n_episodes, run.num_seeds))
     dump_json(
-        os.path.join(run.run_dir, "evaluation.json"), {"episodes": n_episodes, "returns": rows}
+        os.path.join(run.run_dir, "evaluation.json"),
+        {"episodes": n_episodes, "seeds": list(run.seeds), "returns": rows},
     )
     return rows
+
+
+def _interval(iv) -> dict:
+    return {"value": iv.value, "lo": iv.lo, "hi": iv.hi}
+
+
+def _table(rows: dict, n_episodes: int, num_seeds: int) -> str:
+    width = max(10, *(len(k) for k in rows))
+    head = f"{'policy':<{width}s} {'return mean':>12s} {'std':>9s} {'min':>10s} {'max':>10s}"
+    lines = [
+        head + f"   ({n_episodes} episodes" + (f" x {num_seeds} seeds)" if num_seeds > 1 else ")")
+    ]
+    for k, v in rows.items():
+        line = f"{k:<{width}s} {v['mean']:12.2f} {v['std']:9.2f} {v['min']:10.2f} {v['max']:10.2f}"
+        if "over_seeds" in v:
+            iqm = v["over_seeds"]["iqm"]
+            line += f"   IQM over seeds {format_interval(iqm['value'], iqm['lo'], iqm['hi'])}"
+        lines.append(line)
+    return "\n".join(lines)
 
 
 def _stats(r: np.ndarray) -> dict:
@@ -61,77 +83,12 @@ def _stats(r: np.ndarray) -> dict:
     }
 
 
-def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:
-    """Episode return (training episodes, and deterministic evaluations if any) against env
-    steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with open(csv_path) as f:
-        rows = list(csv.DictReader(f))
-    steps = np.array([float(r["env_steps"]) for r in rows])
-    ret = np.array([float(r["episode_return"]) for r in rows])
-    ev = np.array([float(r["eval_return"]) for r in rows])
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ok = ~np.isnan(ret)
-    if ok.any():
-        ax.plot(steps[ok], ret[ok], ".", alpha=0.35, label="training episodes")
-        window = max(1, ok.sum() // 20)
-        smooth = np.convolve(ret[ok], np.ones(window) / window, mode="valid")
-        ax.plot(steps[ok][window - 1 :], smooth, "-", lw=2, label=f"moving mean ({window})")
-    if (~np.isnan(ev)).any():
-        ax.plot(steps[~np.isnan(ev)], ev[~np.isnan(ev)], "o-", label="evaluation (deterministic)")
-    _save(fig, ax, png_path, title, "episode return")
-
-
-def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
-    """Smoothed training-episode return against env steps for several metrics.csv files
-    (Figs. 6b/8b)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for label, csv_path in curves.items():
-        with open(csv_path) as f:
-            rows = list(csv.DictReader(f))
-        # runs trained inside brax (sac, ppo, hppo) log no training episodes: plot their evaluations
-        column = (
-            "episode_return" if any(r["episode_return"] != "nan" for r in rows) else "eval_return"
-        )
-        rows = [r for r in rows if r[column] != "nan"]
-        steps = np.array([float(r["env_steps"]) for r in rows])
-        ret = np.array([float(r[column]) for r in rows])
-        if len(ret):
-            w = max(1, len(ret) // 15)
-            ax.plot(
-                steps[w - 1 :],
-                np.convolve(ret, np.ones(w) / w, mode="valid"),
-                label=label if column == "episode_return" else f"{label} (evaluations)",
-            )
-    _save(fig, ax, path, title, "episode return (training episodes)")
-
-
-def _save(fig, ax, path: str, title: str, ylabel: str) -> None:
-    import matplotlib.pyplot as plt
-
-    ax.set_xlabel("decisions (steps of the action-repeated env)")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def render_policy(run, steps: int, out_dir: str, log=print) -> None:
     """Render a deterministic episode of the trained policy (Spider) to PNG frames and a GIF."""
     from envs.spider.render import render_rollout  # deferred: imports MuJoCo's renderer
 
+    if run.batched:  # the first seed's policy
+        run = run.for_seed(0)
     env, act = run.env, run.algo.policy(run.state.agent)
     if not hasattr(env, "mj_model"):
         raise ValueError(

@@ -118,7 +118,13 @@ class SweepTable:
 def tabulate(
     returns: np.ndarray, settings: SweepSettings, n_agents: int, n_seeds: int, modes=MODES
 ) -> SweepTable:
-    r = np.asarray(returns).reshape(n_agents, len(modes), n_seeds * np.asarray(returns).shape[-1])
+    """``returns [S, E]`` of one policy, or ``[K, S, E]`` of K trained seeds (pooled: every cell
+    holds the K x n_seeds x E episodes)."""
+    r = np.asarray(returns)
+    r = r[None] if r.ndim == 2 else r
+    k, e = r.shape[0], r.shape[-1]
+    r = r.reshape(k, n_agents, len(modes), n_seeds * e).transpose(1, 2, 0, 3)
+    r = r.reshape(n_agents, len(modes), k * n_seeds * e)
     return SweepTable(
         list(range(n_agents)),
         [m.name.lower() for m in modes],
@@ -164,34 +170,42 @@ def plot_sweep(table: SweepTable, path: str, title: str = "") -> None:
 
 
 def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
-    """Sweep a trained run (see ``run.build.restore_run``), write JSON + PNG into its directory."""
+    """Sweep every seed of a trained run (see ``run.build.restore_run``) in one call; write JSON
+    (pooled table, and each trained seed's mean per cell) + PNG into its directory."""
     n = len(run.agent_index)
     settings = shard_settings(settings_grid(n, n_seeds))
     # The agent's state is an argument, not a constant of the program: XLA would otherwise
     # constant-fold the networks into the executable (slow compiles, one per policy).
-    sweep = jax.jit(
-        lambda agent, settings, key: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(
-            settings, key
-        )
+    one = lambda agent, settings, key: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(
+        settings, key
     )
+    sweep = jax.jit(jax.vmap(one, in_axes=(0, None, 0)) if run.batched else one)
     t0 = time.time()
-    returns = jax.block_until_ready(
-        sweep(run.state.agent, settings, jax.random.PRNGKey(run.config.seed + 30_000))
+    returns = np.asarray(
+        jax.block_until_ready(sweep(run.state.agent, settings, run.eval_keys(30_000)))
     )
     seconds = time.time() - t0
     table = tabulate(returns, settings, n, n_seeds)
+    per_seed = returns.reshape(-1, n, len(MODES), n_seeds * returns.shape[-1]).mean(-1)
     dump_json(
         os.path.join(run.run_dir, "robustness.json"),
-        {**table.to_dict(), "n_seeds": n_seeds, "seconds": seconds},
+        {
+            **table.to_dict(),
+            "n_seeds": n_seeds,
+            "trained_seeds": list(run.seeds),
+            "per_trained_seed_mean": per_seed.tolist(),
+            "seconds": seconds,
+        },
     )
     plot_sweep(
         table,
         os.path.join(run.run_dir, "robustness.png"),
-        f"{run.config.algo} on {run.config.env}: robustness",
+        f"{run.config.algo} on {run.config.env}: robustness"
+        + (f" ({run.num_seeds} trained seeds pooled)" if run.num_seeds > 1 else ""),
     )
     log(
-        f"robustness sweep: {settings.n_failed.shape[0]} settings x 1 episode in one call, "
-        f"{seconds:.1f} s (incl. compile)"
+        f"robustness sweep: {run.num_seeds} trained seed(s) x {settings.n_failed.shape[0]} "
+        f"settings x 1 episode in one call, {seconds:.1f} s (incl. compile)"
     )
     log(table.markdown())
     return table

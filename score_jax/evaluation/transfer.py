@@ -13,10 +13,11 @@ import dataclasses
 import os
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from score_jax.agents.growth import plan
-from score_jax.evaluation.report import plot_curves
+from score_jax.evaluation.curves import plot_curves
 from score_jax.run.build import resolve_agent_index, restore_run
 from score_jax.run.checkpoint import CheckpointError, dump_json
 from score_jax.run.config import TransferSpec
@@ -50,8 +51,10 @@ class TransferArgs:
 
 
 def _mean_std(x) -> dict:
+    """Mean and std over every seed's episodes, and each seed's mean (``x [K, E]``)."""
     x = np.asarray(x)
-    return {"mean": float(x.mean()), "std": float(x.std())}
+    per_seed = x.reshape(x.shape[0], -1).mean(-1) if x.ndim > 1 else x.mean(keepdims=True)
+    return {"mean": float(x.mean()), "std": float(x.std()), "per_seed": per_seed.tolist()}
 
 
 def run_transfer(args: TransferArgs, log=print) -> dict:
@@ -76,7 +79,8 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
     p = plan(src.agent_index, target)
     new_names = [space.names[i] for i in p.agent_index[p.is_new]]
     log(f"transfer: {[space.names[i] for i in src.agent_index]} + new {new_names}")
-    key_embed, _ = jax.random.split(jax.random.PRNGKey(src.config.seed + 40_000))
+    # one embedding key per seed (seed s: PRNGKey(s + 40000), as a one-seed run of s)
+    embed_keys = [jax.random.split(jax.random.PRNGKey(s + 40_000))[0] for s in src.seeds]
     run_dir = args.run_dir or args.checkpoint.rstrip("/") + "-transfer"
     total = args.total_steps if args.total_steps is not None else src.spec.total_steps
     cfg = dataclasses.replace(
@@ -94,7 +98,13 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
     initial = {}
 
     def grow(run, template):
-        agent = run.algo.grow(src.state.agent, template, p, key_embed)
+        """Every seed grows its own trained agent (``template``: the fresh seed-stacked state)."""
+        seed = lambda tree, k: jax.tree.map(lambda x: x[k], tree)
+        grown = [
+            run.algo.grow(seed(src.state.agent, k), seed(template, k), p, key)
+            for k, key in enumerate(embed_keys)
+        ]
+        agent = jax.tree.map(lambda *xs: jnp.stack(xs), *grown)
         initial["returns"] = run.evaluate(agent, args.eval_episodes).returns
         log(f"Initial (before fine-tuning): {float(np.mean(initial['returns'])):.2f}")
         return agent

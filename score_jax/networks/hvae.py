@@ -367,11 +367,10 @@ def make_optimizer(config: HVAEConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(10.0), optax.adam(config.learning_rate))
 
 
-def make_hvae_train_step(model: HVAE, optimizer: optax.GradientTransformation) -> Callable:
-    """ONE jitted ``step(params, opt_state, sets, key) -> (params, opt_state, HVAEMetrics)``.
-
-    Each step draws a fresh context/target split of every set; the metrics are those of the
-    step's batch, before the update.
+def hvae_train_step(model: HVAE, optimizer: optax.GradientTransformation) -> Callable:
+    """``step(params, opt_state, sets, key) -> (params, opt_state, HVAEMetrics)`` (pure: jit it,
+    or vmap it over seeds). Each step draws a fresh context/target split of every set; the
+    metrics are those of the step's batch, before the update.
     """
 
     def step(params, opt_state, sets: ObservationSets, key):
@@ -379,7 +378,12 @@ def make_hvae_train_step(model: HVAE, optimizer: optax.GradientTransformation) -
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), opt_state, metrics
 
-    return jax.jit(step)
+    return step
+
+
+def make_hvae_train_step(model: HVAE, optimizer: optax.GradientTransformation) -> Callable:
+    """ONE jitted ``hvae_train_step``."""
+    return jax.jit(hvae_train_step(model, optimizer))
 
 
 def space_embeddings(model: HVAE, params: dict, sets: ObservationSets) -> jax.Array:

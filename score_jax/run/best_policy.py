@@ -15,32 +15,57 @@ import os
 import shutil
 from typing import Any
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
 from score_jax.run.checkpoint import Checkpointer, checkpoint_dir
 
 BEST = "best"
 
 
 class BestPolicy:
-    """The best agent state so far and its evaluation return (``-inf`` before the first)."""
+    """The best agent state of every seed so far and its evaluation return (``-inf`` before the
+    first): one checkpoint of the seed-stacked agent state, each seed's slot its own best.
 
-    def __init__(self, run_dir: str, fresh: bool):
-        if fresh and os.path.isdir(
-            checkpoint_dir(run_dir, BEST)
-        ):  # a new run never inherits a best
+    ``meta["best_steps"]`` / ``meta["best_returns"]`` (lists over seeds) say when each seed's
+    best was evaluated and what it scored (None / -inf for a seed without one yet).
+    """
+
+    def __init__(self, run_dir: str, fresh: bool, num_seeds: int = 1):
+        if fresh and os.path.isdir(checkpoint_dir(run_dir, BEST)):  # a new run never inherits
             shutil.rmtree(checkpoint_dir(run_dir, BEST))
         self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
-        self.step, self.eval_return = None, float("-inf")
-        if self.ckpt.latest_step() is not None:
+        self.steps: list[int | None] = [None] * num_seeds
+        self.returns = np.full(num_seeds, -np.inf)
+        self._agent: Any = None
+        self._saved = self.ckpt.latest_step() is not None
+        if self._saved:
             meta = self.ckpt.read_meta()
-            self.step, self.eval_return = int(meta["step"]), float(meta["eval_return"])
+            self.steps = [None if x is None else int(x) for x in meta["best_steps"]]
+            self.returns = np.asarray(meta["best_returns"], float)
 
-    def offer(self, step: int, eval_return: float, agent_state: Any, meta: dict) -> bool:
-        """Save ``agent_state`` if ``eval_return`` beats the best so far; True if it did."""
-        if not eval_return > self.eval_return:  # also refuses NaN
-            return False
-        self.ckpt.save(step, agent_state, {**meta, "eval_return": float(eval_return)})
-        self.step, self.eval_return = step, float(eval_return)
-        return True
+    def offer(self, step: int, eval_returns, agent_state: Any, meta: dict) -> np.ndarray:
+        """Keep each seed's slot of ``agent_state`` (seed-stacked) whose return in
+        ``eval_returns [K]`` beats that seed's best so far; ``[K]`` bool: which did. NaN never
+        does."""
+        returns = np.atleast_1d(np.asarray(eval_returns, float))
+        better = returns > self.returns
+        if not better.any():
+            return better
+        if self._agent is None:  # the bests saved before a resume are the other seeds' slots
+            self._agent = self.ckpt.restore(agent_state)[0] if self._saved else agent_state
+        mask = jnp.asarray(better)
+        pick = lambda new, old: jnp.where(
+            mask.reshape((-1,) + (1,) * (jnp.ndim(new) - 1)), new, old
+        )
+        self._agent = jax.tree.map(pick, agent_state, self._agent)
+        self.steps = [int(step) if b else s for b, s in zip(better, self.steps, strict=True)]
+        self.returns = np.where(better, returns, self.returns)
+        best_meta = {**meta, "best_steps": self.steps, "best_returns": self.returns.tolist()}
+        self.ckpt.save(step, self._agent, best_meta)
+        self._saved = True
+        return better
 
     def close(self) -> None:
         self.ckpt.close()
@@ -55,7 +80,8 @@ def has_best(run_dir: str) -> bool:
 
 
 def restore_best(run_dir: str, template_agent: Any) -> tuple[Any, dict]:
-    """``(agent_state, meta)`` of the best policy (``meta["step"]``, ``meta["eval_return"]``)."""
+    """``(agent_state, meta)`` of the best policies (seed-stacked; ``meta["best_steps"]``,
+    ``meta["best_returns"]`` per seed)."""
     ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
     try:
         return ckpt.restore(template_agent)

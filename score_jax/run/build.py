@@ -7,6 +7,7 @@ import dataclasses
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import envs
@@ -20,36 +21,87 @@ from score_jax.run.config import RunSpec, TrainConfig, TransferSpec, from_dict, 
 from score_jax.run.episodes import EvalResult, make_evaluator
 from score_jax.run.external import ExternalTrainer
 from score_jax.run.sharding import make_data_mesh
-from score_jax.run.trainer import Trainer
+from score_jax.run.trainer import SeedTrainer, Trainer
+
+
+def seed_keys(seeds) -> tuple[jax.Array, jax.Array]:
+    """``(build keys [K, 2], train keys [K, 2])`` of the seeds: seed ``s`` splits
+    ``PRNGKey(s)`` into its build key (ASRL, networks) and train key (init, exploration, replay),
+    exactly as a one-seed run of seed ``s`` does."""
+    keys = jnp.stack([jax.random.split(jax.random.PRNGKey(int(s))) for s in seeds])
+    return keys[:, 0], keys[:, 1]
 
 
 @dataclasses.dataclass
 class Run:
-    """Everything a run (finished, resumed or fresh) hands to evaluation, plots and transfer."""
+    """Everything a run (finished, resumed or fresh) hands to evaluation, plots and transfer.
+
+    A run trains ``len(seeds)`` independent seeds at once: every leaf of ``state`` has a leading
+    seed axis (``batched``). ``for_seed(k)`` is the one-seed view of seed ``k`` (no seed axis),
+    for code that works on one run.
+    """
 
     config: TrainConfig
     spec: RunSpec
     env: CompositeEnv  # action-repeated
     algo: Algorithm
-    trainer: Trainer | ExternalTrainer
+    trainer: SeedTrainer | Trainer | ExternalTrainer
     agent_index: np.ndarray
+    seeds: tuple[int, ...] = (0,)
     state: Any = None
     transfer: TransferSpec | None = None
+    frozen: Any = None  # the seeds' Algorithm.pretrain output (None: none, or restored)
+    batched: bool = True
     evaluators: dict = dataclasses.field(default_factory=dict, repr=False)
 
     @property
     def run_dir(self) -> str:
         return self.spec.run_dir
 
+    @property
+    def num_seeds(self) -> int:
+        return len(self.seeds)
+
+    def eval_keys(self, offset: int = 10_000) -> jax.Array:
+        """One evaluation key per seed (``PRNGKey(seed + offset)``); one key for a one-seed
+        view."""
+        keys = jnp.stack([jax.random.PRNGKey(s + offset) for s in self.seeds])
+        return keys if self.batched else keys[0]
+
     def evaluate(self, agent, n_episodes: int, n_failed=0, mode=0, key=None) -> EvalResult:
-        """Deterministic-policy episodes of the agent state ``agent`` (one compiled evaluator per
-        episode count, the parameters an argument, reused for every later call)."""
-        key = jax.random.PRNGKey(self.config.seed + 10_000) if key is None else key
+        """Deterministic-policy episodes of the agent state ``agent`` (seed-stacked when
+        ``batched``: returns ``[K, E]``); one compiled evaluator per episode count, the
+        parameters an argument, reused for every later call. ``key``: one per seed."""
+        key = self.eval_keys() if key is None else key
         if n_episodes not in self.evaluators:
             self.evaluators[n_episodes] = make_evaluator(
-                self.env, self.algo.policy, self.agent_index, n_episodes
+                self.env, self.algo.policy, self.agent_index, n_episodes, seeds=self.batched
             )
         return self.evaluators[n_episodes](agent, key, n_failed, mode)
+
+    def evaluate_one(self, agent, n_episodes: int, seed: int, n_failed=0, mode=0) -> EvalResult:
+        """``evaluate`` of ONE seed's (unstacked) agent state, with that seed's evaluation key."""
+        slot = ("one", n_episodes)
+        if slot not in self.evaluators:
+            self.evaluators[slot] = make_evaluator(
+                self.env, self.algo.policy, self.agent_index, n_episodes
+            )
+        return self.evaluators[slot](agent, jax.random.PRNGKey(seed + 10_000), n_failed, mode)
+
+    def for_seed(self, k: int) -> Run:
+        """The one-seed view of seed ``seeds[k]``: its state without the seed axis."""
+        if not self.batched:
+            raise ValueError("for_seed: this is already a one-seed view")
+        pick = lambda tree: None if tree is None else jax.tree.map(lambda x: x[k], tree)
+        return dataclasses.replace(
+            self,
+            trainer=self.trainer.single,
+            seeds=(self.seeds[k],),
+            state=pick(self.state),
+            frozen=pick(self.frozen),
+            batched=False,
+            evaluators={},
+        )
 
     def meta(self) -> dict:
         """What a checkpoint of this run records next to its arrays."""
@@ -59,6 +111,7 @@ class Run:
             "space": self.env.space.to_dict(),
             "agents": [self.env.space.names[i] for i in self.agent_index],
             "algo": self.config.algo,
+            "seeds": list(self.seeds),
             "config": to_dict(self.config),
             "resolved": self.spec.to_dict(),
             "transfer": None if self.transfer is None else dataclasses.asdict(self.transfer),
@@ -82,20 +135,28 @@ def trainable_agents(space, agent_index, transfer: TransferSpec | None) -> np.nd
 
 def build(
     cfg: TrainConfig,
-    key: jax.Array,
+    key: jax.Array | None = None,
     run_dir: str | None = None,
     restoring: bool = False,
     log=print,
     transfer: TransferSpec | None = None,
 ) -> Run:
-    """Environment, resolved configuration, algorithm (incl. SCORE's ASRL stage unless
-    ``restoring``) and trainer of ``cfg``."""
+    """Environment, resolved configuration, algorithm and trainer of ``cfg``, and (unless
+    ``restoring``) the algorithm's pretraining for every seed (SCORE's ASRL, in one program).
+
+    ``key``: the build key of a one-seed run (default: the seed's own, as ``seed_keys``); a
+    run of ``cfg.num_seeds`` seeds always uses ``seed_keys``.
+    """
     raw = envs.make(cfg.env, **cfg.env_overrides())
     spec = resolve(cfg, raw)
     if run_dir is not None:
         spec = dataclasses.replace(spec, run_dir=run_dir)
     env = with_action_repeat(raw, spec.action_repeat)
     agent_index = resolve_agent_index(env.space, cfg.agent_names())
+    seeds = tuple(cfg.seed + k for k in range(cfg.num_seeds))
+    keys_build = seed_keys(seeds)[0]
+    if key is not None and cfg.num_seeds == 1:
+        keys_build = jnp.asarray(key)[None]
     ctx = BuildContext(
         env=env,
         agent_index=agent_index,
@@ -107,17 +168,23 @@ def build(
         num_envs=cfg.off_policy.num_envs,
         updates_per_step=cfg.off_policy.updates_per_step,
         trainable=trainable_agents(env.space, agent_index, transfer),
-        pretrain=not restoring,
         log=log,
     )
-    algo = registry.builder(cfg.algo)(cfg.algorithm_settings(), ctx, key)
+    algo = registry.builder(cfg.algo)(cfg.algorithm_settings(), ctx)
+    frozen = None
+    if not restoring and algo.pretrain is not None:
+        frozen = algo.pretrain(keys_build)
     mesh = make_data_mesh() if cfg.data_parallel and jax.device_count() > 1 else None
     if algo.train_external is not None:  # brax SAC / PPO, H-PPO: their own loop (run.external)
         trainer = ExternalTrainer(algo.off_policy)
     else:
         schedule = dataclasses.replace(cfg.off_policy, exploration_hold=spec.exploration_hold)
-        trainer = Trainer(env, algo.off_policy, schedule, agent_index, mesh)
-    return Run(cfg, spec, env, algo, trainer, agent_index, transfer=transfer)
+        # Seeds over the devices when they divide evenly (whole runs per device), else each
+        # seed's environments and batches (see SeedTrainer).
+        by_seed = mesh is not None and cfg.num_seeds % mesh.size == 0
+        single = Trainer(env, algo.off_policy, schedule, agent_index, None if by_seed else mesh)
+        trainer = SeedTrainer(single, cfg.num_seeds, mesh if by_seed else None)
+    return Run(cfg, spec, env, algo, trainer, agent_index, seeds, transfer=transfer, frozen=frozen)
 
 
 def saved_transfer(meta: dict) -> TransferSpec | None:
@@ -132,37 +199,40 @@ def saved_transfer(meta: dict) -> TransferSpec | None:
 def restore_run(run_dir: str, log=print, policy: str = "last") -> Run:
     """Rebuild a finished run from its latest checkpoint (for evaluation, sweeps and transfer).
 
-    ``policy="best"`` puts the best-evaluated agent state (``run.best_policy``) in place of the
-    last one when the run kept one, and says so through ``log``.
+    ``policy="best"`` puts each seed's best-evaluated agent state (``run.best_policy``) in place
+    of its last one when the run kept one, and says so through ``log``.
     """
     if policy not in ("last", "best"):
         raise ValueError(f"policy must be 'last' or 'best', got {policy!r}")
     ckpt = Checkpointer(run_dir)
     meta = ckpt.read_meta()
     cfg = from_dict(TrainConfig, meta["config"])
-    key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
-    run = build(cfg, key_build, run_dir, restoring=True, log=log, transfer=saved_transfer(meta))
-    state, meta = ckpt.restore(run.trainer.init(key_train))
+    run = build(cfg, None, run_dir, restoring=True, log=log, transfer=saved_transfer(meta))
+    state, meta = ckpt.restore(run.trainer.init(seed_keys(run.seeds)[1]))
     check_space_matches(meta, cfg.env, run.env.space)
     ckpt.close()
-    if policy == "best" and has_best(run_dir):
-        agent, best_meta = restore_best(run_dir, state.agent)
-        state = state.replace(agent=agent)
-        log(
-            f"using the best policy of {run_dir} (env step {best_meta['step']}, "
-            f"evaluation {best_meta['eval_return']:.1f})"
-        )
     run.state = run.trainer.place(state)
-    return run
+    return with_best_policy(run, log) if policy == "best" else run
 
 
 def with_best_policy(run: Run, log=print) -> Run:
-    """``run`` with its best-evaluated agent state in place of the last one (unchanged if none)."""
+    """``run`` with each seed's best-evaluated agent state in place of its last one (seeds
+    without a best keep theirs; unchanged if the run kept none)."""
     if not has_best(run.run_dir):
         return run
-    agent, meta = restore_best(run.run_dir, run.state.agent)
-    log(
-        f"using the best policy (env step {meta['step']}, evaluation {meta['eval_return']:.1f}) "
-        "from here on"
+    best, meta = restore_best(run.run_dir, run.state.agent)
+    found = np.asarray([s is not None for s in meta["best_steps"]])
+    keep = jnp.asarray(found)
+    pick = lambda b, last: jnp.where(keep.reshape((-1,) + (1,) * (b.ndim - 1)), b, last)
+    agent = jax.tree.map(pick, best, run.state.agent)
+    described = ", ".join(
+        f"seed {s}: step {st}, evaluation {r:.1f}"
+        for s, st, r, f in zip(
+            run.seeds, meta["best_steps"], meta["best_returns"], found, strict=True
+        )
+        if f
     )
-    return dataclasses.replace(run, state=run.trainer.place(run.state.replace(agent=agent)))
+    log(f"using the best policies of {run.run_dir} ({described}) from here on")
+    return dataclasses.replace(
+        run, state=run.trainer.place(run.state.replace(agent=agent)), evaluators=run.evaluators
+    )

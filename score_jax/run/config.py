@@ -64,6 +64,11 @@ class TrainConfig:
     """Decisions (transitions) to train for; None = the environment's preset."""
     seed: int = 0
     """Seed of every random stream (ASRL data, init, exploration, replay, evaluation)."""
+    num_seeds: int = 1
+    """Independent runs of seeds ``seed .. seed + num_seeds - 1`` in one compiled program (a
+    leading seed axis of the training state; each seed has its own ASRL, init, exploration,
+    replay and evaluation streams). brax-trained algorithms (sac, ppo, hppo) train their seeds
+    one after another: brax's ``train()`` cannot be vmapped."""
     run_dir: str | None = None
     """Where checkpoints, metrics.csv and plots go; None = runs/<env>-<algo>-s<seed>."""
     resume: str | None = None

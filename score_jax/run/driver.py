@@ -21,7 +21,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from score_jax.run.build import Run, build, saved_transfer
+from score_jax.run.build import Run, build, saved_transfer, seed_keys
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
 from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_dict, to_dict
 from score_jax.run.external import RESUME_ERROR, fit_external
@@ -34,25 +34,31 @@ __all__ = ["NonFiniteError", "Run", "train"]
 BASE_COLUMNS = ("updates", "wall_s", "episode_return", "reward_mean", "eval_return")
 
 
-def _epoch_row(state: TrainState, metrics) -> dict:
-    m = jax.device_get(metrics)
-    done = float(m.completed_episodes)
-    row = {
-        "updates": int(state.updates),
-        "episode_return": float(m.completed_return_sum) / done if done else math.nan,
-        "reward_mean": float(m.reward_mean),
-    }
-    row.update({name: float(value) for name, value in sorted(m.agent.items())})
-    return row
+def _epoch_rows(state: TrainState, metrics) -> list[dict]:
+    """One metrics row per seed from a seed-stacked state and epoch metrics."""
+    m, updates = jax.device_get((metrics, state.updates))
+    rows = []
+    for k in range(len(updates)):
+        done = float(m.completed_episodes[k])
+        row = {
+            "updates": int(updates[k]),
+            "episode_return": float(m.completed_return_sum[k]) / done if done else math.nan,
+            "reward_mean": float(m.reward_mean[k]),
+        }
+        row.update({name: float(value[k]) for name, value in sorted(m.agent.items())})
+        rows.append(row)
+    return rows
 
 
 def _metric_columns(run: Run) -> list[str]:
     """``BASE_COLUMNS`` then the algorithm's own metrics, by name."""
     if run.algo.train_external is not None:
         return [*BASE_COLUMNS, *[n for n in run.algo.metric_names if n not in BASE_COLUMNS]]
+    single = run.trainer.single
     shapes = jax.eval_shape(
-        run.trainer.epoch, run.trainer.init(jax.random.PRNGKey(0)), run.algo.off_policy.hyper
-    )[1]
+        lambda key: single._epoch(single.init_state(key), run.algo.off_policy.hyper)[1],
+        jax.random.PRNGKey(0),
+    )
     return [*BASE_COLUMNS, *sorted(shapes.agent)]
 
 
@@ -63,11 +69,12 @@ def train(
     initial_agent: Callable | None = None,
     transfer: TransferSpec | None = None,
 ) -> Run:
-    """Train (or resume) a run; returns the final ``Run``.
+    """Train (or resume) a run of ``cfg.num_seeds`` seeds; returns the final ``Run``.
 
     ``initial_agent(run, fresh_agent_state) -> agent_state`` replaces the freshly initialised
-    algorithm state of a new run (transfer grows it from a trained run, with ``transfer``
-    saying which sub-spaces are new); ``on_epoch(run, row)`` is called after every metrics row.
+    (seed-stacked) algorithm state of a new run (transfer grows it from a trained run, with
+    ``transfer`` saying which sub-spaces are new); ``on_epoch(run, row)`` is called after every
+    metrics row (one per seed, with its ``seed``).
     """
     if cfg.resume:
         meta = Checkpointer(cfg.resume).read_meta()
@@ -76,58 +83,61 @@ def train(
         transfer = saved_transfer(meta)
     run_dir = default_run_dir(cfg)
     os.makedirs(run_dir, exist_ok=True)
-    key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
 
-    run = build(
-        cfg,
-        key_build,
-        run_dir,
-        restoring=bool(cfg.resume) or initial_agent is not None,
-        log=log,
-        transfer=transfer,
-    )
+    restoring = bool(cfg.resume) or initial_agent is not None
+    run = build(cfg, None, run_dir, restoring=restoring, log=log, transfer=transfer)
+    keys_train = seed_keys(run.seeds)[1]
     ckpt = Checkpointer(run_dir)
     external = run.algo.train_external is not None
     if cfg.resume and external:
         raise CheckpointError(RESUME_ERROR.format(algo=cfg.algo, run_dir=run_dir))
     if not cfg.resume and ckpt.latest_step() is not None:
         raise CheckpointError(
-            f"{run_dir} already holds a run; pass --resume {run_dir} to continue it "
-            "or choose another --run-dir"
+            f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or choose "
+            "another --run-dir"
         )
     if not cfg.resume:
         dump_json(
             os.path.join(run_dir, "config.json"),
-            {**to_dict(cfg), "resolved": run.spec.to_dict(), "transfer": run.meta()["transfer"]},
+            {
+                **to_dict(cfg),
+                "resolved": run.spec.to_dict(),
+                "seeds": list(run.seeds),
+                "transfer": run.meta()["transfer"],
+            },
         )
 
     if external:
-        recorder = _recorder(run, None, log, on_epoch)
-        return fit_external(run, recorder, ckpt, key_train, log=log, initial_agent=initial_agent)
+        recorder = _recorder(run, None, log, on_epoch, total=run.spec.total_steps * run.num_seeds)
+        return fit_external(run, recorder, ckpt, keys_train, log=log, initial_agent=initial_agent)
 
-    state = run.trainer.init(key_train)
+    state = run.trainer.init(keys_train, run.frozen)
     if initial_agent is not None and not cfg.resume:
         state = run.trainer.place(state.replace(agent=initial_agent(run, state.agent)))
     if cfg.resume:
         state, meta = ckpt.restore(state)
         check_space_matches(meta, cfg.env, run.env.space)
         state = run.trainer.place(state)
-        log(f"resumed {run_dir} at env step {int(state.env_steps)}")
+        log(f"resumed {run_dir} at env step {int(np.max(state.env_steps))}")
     run.state = state
-    recorder = _recorder(run, int(state.env_steps) if cfg.resume else None, log, on_epoch)
+    resume_from = int(np.max(state.env_steps)) if cfg.resume else None
+    recorder = _recorder(run, resume_from, log, on_epoch)
     return _fit_off_policy(run, recorder, ckpt)
 
 
-def _recorder(run: Run, resume_from: int | None, log, on_epoch) -> RunRecorder:
+def _recorder(
+    run: Run, resume_from: int | None, log, on_epoch, total: int | None = None
+) -> RunRecorder:
     keep = run.config.keep_best and bool(run.spec.eval_every)
     on_row = None if on_epoch is None else (lambda row: on_epoch(run, row))
     return RunRecorder(
         run.run_dir,
         _metric_columns(run),
-        run.spec.total_steps,
+        total or run.spec.total_steps,
         run.config.quiet,
         run.meta(),
         keep,
+        run.seeds,
         resume_from,
         log,
         on_row,
@@ -135,36 +145,51 @@ def _recorder(run: Run, resume_from: int | None, log, on_epoch) -> RunRecorder:
 
 
 def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
-    """The off-policy epochs until ``spec.total_steps`` decisions, with periodic evaluations and
-    checkpoints."""
+    """The off-policy epochs of every seed until ``spec.total_steps`` decisions, with periodic
+    evaluations and checkpoints. A seed that goes non-finite stops (``SeedTrainer``) and is
+    reported; the run stops when every seed has."""
     spec, cfg = run.spec, run.config
     state = run.state
     meta = run.meta()
     spe, eval_every = spec.steps_per_epoch, spec.eval_every
-    last_ckpt = int(state.env_steps)
+    steps = int(np.max(state.env_steps))
+    last_ckpt = steps
     hyper = run.algo.off_policy.hyper
-    while int(state.env_steps) < spec.total_steps:
+    alive = np.asarray(state.alive)
+    while steps < spec.total_steps:
         state, metrics = run.trainer.epoch(state, hyper)
-        if not bool(metrics.finite):
+        now_alive = np.asarray(state.alive)
+        for k in np.flatnonzero(alive & ~now_alive):
+            recorder.progress.write(
+                f"seed {run.seeds[k]}: non-finite loss or parameter at env step {steps + spe}; "
+                "this seed stopped (its last finite state is kept), the others go on",
+                recorder.log,
+            )
+        alive = now_alive
+        if not alive.any():
             ckpt.close()
             recorder.close()
+            which = "every seed" if run.num_seeds > 1 else "the run"
             raise NonFiniteError(
-                f"non-finite loss or parameter at env step {int(state.env_steps)}; stopped. "
+                f"non-finite loss or parameter at env step {steps + spe} in {which}; stopped. "
                 f"The last good checkpoint (env step {last_ckpt}) is kept in {ckpt.directory}."
             )
-        steps = int(state.env_steps)
-        row = _epoch_row(state, metrics)
+        steps = int(np.max(state.env_steps))
+        rows = _epoch_rows(state, metrics)
         if eval_every and steps // eval_every != (steps - spe) // eval_every:
-            row["eval_return"] = float(
-                np.mean(run.evaluate(state.agent, n_episodes=cfg.eval_episodes).returns)
-            )
+            returns = np.asarray(run.evaluate(state.agent, n_episodes=cfg.eval_episodes).returns)
+            for k, row in enumerate(rows):
+                row["eval_return"] = float(np.mean(returns[k]))
         run.state = state
-        recorder.record(steps, row, state.agent)
+        recorder.record(steps, rows, state.agent, live=alive)
         if steps - last_ckpt >= spec.checkpoint_every:
-            ckpt.save(steps, state, meta)
+            ckpt.save(steps, state, {**meta, "alive": alive.tolist()})
             last_ckpt = steps
-    if last_ckpt != int(state.env_steps):
-        ckpt.save(int(state.env_steps), state, meta)
+    if last_ckpt != steps:
+        ckpt.save(steps, state, {**meta, "alive": alive.tolist()})
     recorder.close()
     ckpt.close()
+    if not alive.all():
+        stopped = [s for s, ok in zip(run.seeds, alive, strict=True) if not ok]
+        recorder.log(f"warning: seeds {stopped} stopped at non-finite values; the others finished")
     return run

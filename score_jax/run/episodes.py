@@ -76,21 +76,25 @@ def evaluate(
     return EvalResult(ret, length)
 
 
-def make_evaluator(env: CompositeEnv, policy: Callable, agent_index, n_episodes: int):
+def make_evaluator(
+    env: CompositeEnv, policy: Callable, agent_index, n_episodes: int, seeds: bool = False
+):
     """``evaluate`` compiled once with the agent's state an ARGUMENT (not a closed-over constant).
 
     ``policy(agent_state) -> act_fn``. Returns ``fn(agent_state, key, n_failed=0, mode=0) ->
     EvalResult``: evaluating a new set of parameters, or under other failures, reuses the same
     executable (closing over the parameters instead would recompile, and constant-fold the
-    network, at every call).
+    network, at every call). ``seeds=True``: ``agent_state`` and ``key`` have a leading seed
+    axis (one key per seed) and the result is ``[K, E]``, all seeds in one vmapped call.
     """
     agent_index = np.asarray(agent_index)
 
-    @jax.jit
     def fn(agent_state, key, n_failed=0, mode=0):
         return evaluate(env, policy(agent_state), key, n_episodes, agent_index, n_failed, mode)
 
-    return fn
+    if seeds:
+        return jax.jit(jax.vmap(fn, in_axes=(0, 0, None, None)))
+    return jax.jit(fn)
 
 
 def random_act_fn(space, agent_index, width: int) -> ActFn:

@@ -46,14 +46,22 @@ class ExternalState:
 
 
 class ExternalTrainer:
-    """Stands in for ``trainer.Trainer`` in a ``Run``: builds the checkpoint template from the
-    algorithm's ``init`` (for ``restore_run``); there is nothing to shard."""
+    """Stands in for the off-policy trainer in a ``Run``: builds the checkpoint template from the
+    algorithm's ``init`` (for ``restore_run``), seed-stacked unless it is a one-seed view's
+    (``single``); there is nothing to shard."""
 
-    def __init__(self, algo):
-        self.algo = algo
+    def __init__(self, algo, batched: bool = True):
+        self.algo, self.batched = algo, batched
 
-    def init(self, key: jax.Array) -> ExternalState:
-        return ExternalState(_arrays(self.algo.init(key)), jnp.zeros((), jnp.int32))
+    @property
+    def single(self) -> ExternalTrainer:
+        return ExternalTrainer(self.algo, batched=False)
+
+    def init(self, keys: jax.Array, frozen=None) -> ExternalState:
+        if not self.batched:
+            return ExternalState(_arrays(self.algo.init(keys)), jnp.zeros((), jnp.int32))
+        agent = jax.vmap(self.algo.init)(keys)
+        return ExternalState(_arrays(agent), jnp.zeros(keys.shape[0], jnp.int32))
 
     def place(self, state: ExternalState) -> ExternalState:
         return state
@@ -75,45 +83,63 @@ def fit_external(
     run,
     recorder: RunRecorder,
     ckpt: Checkpointer,
-    key: jax.Array,
+    keys: jax.Array,
     log=print,
     initial_agent: Callable | None = None,
 ):
-    """Train ``run`` (built by ``run.build.build``) with ``run.algo.train_external``; returns the
-    run.
+    """Train ``run`` (built by ``run.build.build``) with ``run.algo.train_external``, its seeds one
+    after another (brax's ``train()`` cannot be vmapped); returns the run.
 
-    ``key`` initialises the parameters brax starts from (brax always starts from them, not its
-    own initialisation, so a run's initial parameters are reproducible from the seed);
-    ``initial_agent(run, fresh_agent) -> agent`` replaces them (transfer.py warm-starts).
+    ``keys [K, 2]`` initialise the parameters brax starts from (brax always starts from them,
+    not its own initialisation, so a run's initial parameters are reproducible from the seed);
+    ``initial_agent(run, fresh_agents) -> agents`` (seed-stacked) replaces them (transfer.py
+    warm-starts).
     """
-    cfg, total = run.config, run.spec.total_steps
-    initial = run.trainer.init(key).agent
+    cfg, total, k_seeds = run.config, run.spec.total_steps, run.num_seeds
+    initial = run.trainer.init(keys).agent
     initial = _arrays(initial_agent(run, initial) if initial_agent is not None else initial)
     t0 = time.time()
+    agents, done = [], []
+    for k, seed in enumerate(run.seeds):
+        live = [i == k for i in range(k_seeds)]
 
-    def report(env_steps: int, columns: dict, agent: Any = None) -> None:
-        """One metrics row; ``agent``: the parameters ``columns["eval_return"]`` evaluated (kept if
-        the best)."""
-        recorder.record(int(env_steps), columns, None if agent is None else _arrays(agent))
+        def report(env_steps: int, columns: dict, agent: Any = None, k=k, live=live) -> None:
+            """One metrics row of seed ``k``; ``agent``: the parameters its ``eval_return``
+            evaluated (kept if that seed's best)."""
+            rows = [columns if i == k else {} for i in range(k_seeds)]
+            stacked = None
+            if agent is not None:
+                stacked = jax.tree.map(
+                    lambda x: jnp.broadcast_to(x, (k_seeds, *jnp.shape(x))), _arrays(agent)
+                )
+            recorder.record(
+                int(env_steps), rows, stacked, live=live, progress_at=k * total + int(env_steps)
+            )
 
-    evaluate = None
-    if (
-        run.spec.eval_every
-    ):  # the project's evaluator: compiled once per run, the parameters an argument
-        evaluate = lambda agent: float(np.mean(run.evaluate(agent, cfg.eval_episodes).returns))
-    agent = _arrays(run.algo.train_external(total, report, initial, evaluate))
-    done = recorder.done
+        evaluate = None
+        if (
+            run.spec.eval_every
+        ):  # the project's evaluator: compiled once, the parameters an argument
+            evaluate = lambda agent, seed=seed: float(
+                np.mean(run.evaluate_one(agent, cfg.eval_episodes, seed).returns)
+            )
+        init_k = jax.tree.map(lambda x, k=k: x[k], initial)
+        agent = _arrays(run.algo.train_external(total, report, init_k, evaluate, seed))
+        if not _finite(agent):
+            recorder.close()
+            ckpt.close()
+            raise NonFiniteError(
+                f"{cfg.algo} seed {seed} ended with non-finite parameters; nothing was saved"
+            )
+        agents.append(agent)
+        done.append(recorder.last_step)
     recorder.close()
-    if not _finite(agent):
-        ckpt.close()
-        raise NonFiniteError(
-            f"{cfg.algo} ended with non-finite parameters after {done} env steps; nothing was saved"
-        )
-    run.state = ExternalState(agent, jnp.asarray(done, jnp.int32))
-    ckpt.save(done, run.state, run.meta())
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *agents)
+    run.state = ExternalState(stacked, jnp.asarray(done, jnp.int32))
+    ckpt.save(max(done), run.state, run.meta())
     ckpt.close()
     log(
-        f"{cfg.algo}: trained {done} env steps in {time.time() - t0:.1f} s; "
-        f"checkpoint in {ckpt.directory}"
+        f"{cfg.algo}: trained {k_seeds} seed(s) x {max(done)} env steps in "
+        f"{time.time() - t0:.1f} s; checkpoint in {ckpt.directory}"
     )
     return run

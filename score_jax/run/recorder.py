@@ -7,8 +7,10 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
+
+import numpy as np
 
 from score_jax.run.best_policy import BestPolicy
 from score_jax.run.writers import CsvWriter, truncate_csv
@@ -56,12 +58,14 @@ class Progress:
 
 
 class RunRecorder:
-    """Writes metrics rows, moves the progress bar, keeps the best-evaluated policy.
+    """Writes metrics rows (one per seed, with a ``seed`` column), moves the progress bar,
+    keeps each seed's best-evaluated policy.
 
     ``columns``: the metric names of every row, in order (a row's missing ones are NaN).
+    ``seeds``: the run's seeds. ``total``: decisions the progress bar counts to.
     ``resume_from``: on resume, the decision count of the restored checkpoint (rows after it
     are produced again, so they are dropped); None for a new run (the file is started anew).
-    ``meta``: the run's checkpoint metadata, saved with the best policy.
+    ``meta``: the run's checkpoint metadata, saved with the best policies.
     """
 
     def __init__(
@@ -72,6 +76,7 @@ class RunRecorder:
         quiet: bool,
         meta: dict,
         keep_best: bool,
+        seeds: tuple[int, ...] = (0,),
         resume_from: int | None = None,
         log=print,
         on_row: Callable | None = None,
@@ -82,41 +87,78 @@ class RunRecorder:
                 os.remove(path)
         else:
             truncate_csv(path, resume_from)
-        self.columns = list(columns)
+        self.columns, self.seeds = list(columns), tuple(seeds)
         self.csv = CsvWriter(path, self.columns)
         self.progress = Progress(total, resume_from or 0, quiet)
-        self.best = BestPolicy(run_dir, fresh=resume_from is None) if keep_best else None
+        self.best = BestPolicy(run_dir, resume_from is None, len(self.seeds)) if keep_best else None
         self.meta, self.log, self.on_row = meta, log, on_row
         self.t0 = time.time()
         self.done = resume_from or 0
-        self.recent: list[float] = []
+        self.last_step = resume_from or 0
+        self.recent: dict[int, float] = {}
 
-    def record(self, env_steps: int, row: dict, agent: Any = None) -> dict:
-        """Write one row at ``env_steps``; ``agent``: the parameters ``row["eval_return"]``
-        evaluated (kept when the best so far). Returns the full row."""
-        full = {c: math.nan for c in self.columns}
-        full.update(row, wall_s=round(time.time() - self.t0, 2))
-        self.csv.write(int(env_steps), full)
-        episode = full.get("episode_return", math.nan)
-        if not math.isnan(episode):
-            self.recent = (self.recent + [episode])[-10:]
-        evaluation = full.get("eval_return", math.nan)
-        if not math.isnan(evaluation):
-            kept = (
-                self.best is not None
-                and agent is not None
-                and self.best.offer(int(env_steps), evaluation, agent, self.meta)
+    def record(
+        self,
+        env_steps: int,
+        rows: Sequence[dict],
+        agent: Any = None,
+        live=None,
+        progress_at: int | None = None,
+    ) -> list[dict]:
+        """Write one row per seed at ``env_steps`` (``rows[k]``: seed ``seeds[k]``; seeds where
+        ``live`` is False are stopped and write nothing); ``agent``: the seed-stacked parameters
+        the rows' ``eval_return`` evaluated (each seed's kept when its best so far);
+        ``progress_at``: the progress bar's position (default ``env_steps``; seeds trained one
+        after another count on). Returns the full rows."""
+        live = [True] * len(rows) if live is None else [bool(x) for x in live]
+        full_rows = []
+        for k, row in enumerate(rows):
+            full = {c: math.nan for c in self.columns}
+            full.update(row, wall_s=round(time.time() - self.t0, 2))
+            full_rows.append(full)
+            if not live[k]:
+                continue
+            self.csv.write(int(env_steps), full, seed=self.seeds[k])
+            if not math.isnan(full.get("episode_return", math.nan)):
+                self.recent[k] = full["episode_return"]
+            if self.on_row is not None:
+                self.on_row({"env_steps": int(env_steps), "seed": self.seeds[k], **full})
+        evaluations = np.asarray(
+            [
+                r.get("eval_return", math.nan) if ok else math.nan
+                for r, ok in zip(full_rows, live, strict=True)
+            ]
+        )
+        if not np.all(np.isnan(evaluations)):
+            self._report_evaluation(int(env_steps), evaluations, agent)
+        shown = float(np.mean(list(self.recent.values()))) if self.recent else None
+        if shown is None and not np.all(np.isnan(evaluations)):
+            shown = float(np.nanmean(evaluations))
+        position = int(env_steps) if progress_at is None else int(progress_at)
+        self.progress.update(max(0, position - self.done), shown)
+        self.done = max(self.done, position)
+        self.last_step = int(env_steps)
+        return full_rows
+
+    def _report_evaluation(self, env_steps: int, evaluations: np.ndarray, agent: Any) -> None:
+        kept = np.zeros(len(evaluations), bool)
+        if self.best is not None and agent is not None:
+            kept = self.best.offer(env_steps, evaluations, agent, self.meta)
+        done = ~np.isnan(evaluations)
+        if len(evaluations) == 1:
+            note = f", the best so far (saved to {self.best.ckpt.directory})" if kept[0] else ""
+            message = f"env step {env_steps}: evaluation {evaluations[0]:.1f}{note}"
+        else:
+            per_seed = " ".join(
+                f"{v:.1f}{'*' if b else ''}"
+                for v, b, d in zip(evaluations, kept, done, strict=True)
+                if d
             )
-            note = f", the best so far (saved to {self.best.ckpt.directory})" if kept else ""
-            self.progress.write(
-                f"env step {int(env_steps)}: evaluation {evaluation:.1f}{note}", self.log
+            message = (
+                f"env step {env_steps}: evaluation mean {np.nanmean(evaluations):.1f} over "
+                f"{int(done.sum())} seeds ({per_seed}; * = that seed's best so far)"
             )
-        shown = self.recent[-1] if self.recent else (None if math.isnan(evaluation) else evaluation)
-        self.progress.update(max(0, int(env_steps) - self.done), shown)
-        self.done = max(self.done, int(env_steps))
-        if self.on_row is not None:
-            self.on_row({"env_steps": int(env_steps), **full})
-        return full
+        self.progress.write(message, self.log)
 
     def close(self) -> None:
         self.progress.close()

@@ -16,6 +16,7 @@ of metrics.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
@@ -40,13 +41,13 @@ class TrainState:
     buffer: ReplayBuffer
     env_state: EnvState  # batched [num_envs], auto-resetting
     episode_return: jax.Array  # [num_envs] running return of the current episodes
-    last_action: (
-        jax.Array
-    )  # [num_envs, n, max_dim] action the envs received last step (LAST failure mode)
+    # [num_envs, n, max_dim] action the envs received last step (LAST failure mode)
+    last_action: jax.Array
     explore_keys: jax.Array  # [num_envs, 2] each env's held exploration key (``exploration_hold``)
     key: jax.Array
     env_steps: jax.Array  # [] int32 transitions collected so far
     updates: jax.Array  # [] int32 gradient updates so far
+    alive: jax.Array  # [] bool: False once this seed went non-finite (``SeedTrainer``)
 
 
 @struct.dataclass
@@ -111,7 +112,13 @@ class Trainer:
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
-    def init(self, key: jax.Array) -> TrainState:
+    def init(self, key: jax.Array, frozen=None) -> TrainState:
+        """A fresh state from ``key``; ``frozen``: the algorithm's pretrained inputs of this seed
+        (``Algorithm.pretrain``), None for their template."""
+        return self.place(jax.jit(self.init_state)(key, frozen))
+
+    def init_state(self, key: jax.Array, frozen=None) -> TrainState:
+        """``init`` as a pure function (vmapped over seeds by ``SeedTrainer``), not placed."""
         key, key_agent, key_env = jax.random.split(key, 3)
         n, w, obs_size = self.algo.n_agents, self.algo.width, self.env.observation_size
         example = Transition(
@@ -122,24 +129,21 @@ class Trainer:
             terminal=jnp.zeros(()),
             active=jnp.ones(n, bool),
         )
-        env_state = jax.jit(jax.vmap(self.env.reset))(
-            jax.random.split(key_env, self.config.num_envs)
-        )
-        state = TrainState(
-            agent=jax.jit(self.algo.init)(key_agent),
+        num_envs = self.config.num_envs
+        return TrainState(
+            agent=self.algo.init(key_agent, frozen),
             buffer=replay_init(example, self.config.replay_capacity),
-            env_state=env_state,
-            episode_return=jnp.zeros(self.config.num_envs),
+            env_state=jax.vmap(self.env.reset)(jax.random.split(key_env, num_envs)),
+            episode_return=jnp.zeros(num_envs),
             last_action=jnp.broadcast_to(
-                self.space.default_action(),
-                (self.config.num_envs, self.space.n, self.space.max_dim),
+                self.space.default_action(), (num_envs, self.space.n, self.space.max_dim)
             ),
-            explore_keys=jax.random.split(jax.random.fold_in(key, 1), self.config.num_envs),
+            explore_keys=jax.random.split(jax.random.fold_in(key, 1), num_envs),
             key=key,
             env_steps=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
+            alive=jnp.ones((), bool),
         )
-        return self.place(state)
 
     # -- data parallelism ------------------------------------------------------------------
     def place(self, state: TrainState) -> TrainState:
@@ -158,6 +162,7 @@ class Trainer:
             explore_keys=put(state.explore_keys, data),
             env_steps=put(state.env_steps, replicated),
             updates=put(state.updates, replicated),
+            alive=put(state.alive, replicated),
         )
 
     def _shard_batch(self, tree):
@@ -223,7 +228,7 @@ class Trainer:
 
         learn = (env_steps >= cfg.learning_starts) & (buffer.size >= cfg.batch_size)
         agent, metrics, did = jax.lax.cond(learn, do_updates, skip, state.agent)
-        state = TrainState(
+        state = state.replace(
             agent=agent,
             buffer=buffer,
             env_state=env_state,
@@ -284,3 +289,68 @@ class Trainer:
         return state, EpochMetrics(
             mean_metrics, jnp.sum(completed[0]), jnp.sum(completed[1]), jnp.mean(reward), finite
         )
+
+
+class SeedTrainer:
+    """K independent runs of one ``Trainer`` in one compiled program: every leaf of the
+    ``TrainState`` gets a leading seed axis and the epoch is ``vmap``ped over it (PureJaxRL's
+    ``jit(vmap(train))``), so the small kernels of one run become K-wide batched ones.
+
+    A seed whose losses or parameters go non-finite is stopped: its agent state, step and update
+    counters stay at their last finite values and ``alive`` turns False; the other seeds go on.
+
+    Data parallelism (``mesh``): when K is a multiple of the device count the seed axis is
+    sharded (whole runs per device: no communication at all); otherwise the inner ``Trainer``
+    shards each seed's environments and batches (it was built with the mesh).
+    """
+
+    def __init__(self, trainer: Trainer, num_seeds: int, mesh: Mesh | None = None):
+        if num_seeds < 1:
+            raise ValueError(f"num_seeds must be >= 1, got {num_seeds}")
+        self.single, self.num_seeds = trainer, int(num_seeds)
+        self.mesh = mesh if mesh is not None and num_seeds % mesh.size == 0 else None
+        self.epoch = jax.jit(self._epoch)
+
+    @property
+    def shards(self) -> str:
+        """What the ``data`` axis splits: ``seeds``, ``envs`` or ``nothing``."""
+        if self.mesh is not None:
+            return "seeds"
+        return "envs" if self.single.mesh is not None else "nothing"
+
+    def init(self, keys: jax.Array, frozen=None) -> TrainState:
+        """``keys [K, 2]``; ``frozen``: pretrained inputs with a leading K axis (None: template)."""
+        in_axes = (0, None if frozen is None else 0)
+        return self.place(jax.jit(jax.vmap(self.single.init_state, in_axes))(keys, frozen))
+
+    def place(self, state: TrainState) -> TrainState:
+        if self.mesh is not None:
+            sharding = NamedSharding(self.mesh, P("data"))
+            return jax.tree.map(lambda x: jax.device_put(x, sharding), state)
+        if self.single.mesh is None:
+            return state
+        data = NamedSharding(self.single.mesh, P(None, "data"))
+        replicated = NamedSharding(self.single.mesh, P())
+        put = lambda tree, sharding: jax.tree.map(lambda x: jax.device_put(x, sharding), tree)
+        per_env = ("env_state", "episode_return", "last_action", "explore_keys")
+        return state.replace(
+            **{
+                f.name: put(getattr(state, f.name), data if f.name in per_env else replicated)
+                for f in dataclasses.fields(state)
+            }
+        )
+
+    def _epoch(self, state: TrainState, hyper) -> tuple[TrainState, EpochMetrics]:
+        new, metrics = jax.vmap(self.single._epoch, in_axes=(0, None))(state, hyper)
+        ok = state.alive & metrics.finite
+
+        def freeze(fresh, old):
+            return jnp.where(ok.reshape((-1,) + (1,) * (fresh.ndim - 1)), fresh, old)
+
+        new = new.replace(
+            agent=jax.tree.map(freeze, new.agent, state.agent),
+            env_steps=freeze(new.env_steps, state.env_steps),
+            updates=freeze(new.updates, state.updates),
+            alive=ok,
+        )
+        return new, metrics

@@ -40,13 +40,13 @@ SAC_METRICS = ("updates", "critic_loss", "actor_loss", "alpha", "eval_return")
 PPO_METRICS = ("updates", "critic_loss", "actor_loss", "entropy", "eval_return")
 
 
-def make_sac(sc: SingleAgentConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_sac(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
     """brax SAC (tanh-normal policy over the flat action, twin Q, learned temperature)."""
     factory = functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=tuple(sc.hidden))
     return build(sc, ctx, "sac", "sac", factory, mlp_head_mask)
 
 
-def make_ppo(sc: SingleAgentConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_ppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
     """brax PPO (tanh-normal policy over the flat action, state-value critic, GAE)."""
     hidden = tuple(sc.hidden)
     factory = functools.partial(
@@ -129,7 +129,7 @@ def build(
     nets = factory(env.observation_size, space.total_dim, preprocess_observations_fn=normalize)
     dist = nets.parametric_action_distribution
 
-    def init(key):
+    def init(key, frozen=None):
         """The saved agent's structure: brax's inference parameters, freshly initialised."""
         key_policy, key_value = jax.random.split(key)
         normalizer = running_statistics.init_state(
@@ -144,9 +144,10 @@ def build(
         flat = dist.mode(params) if deterministic else dist.sample(params, key)
         return space.unflatten(flat)[..., idx, :]
 
-    def train_external(total_steps: int, report, initial, evaluate=None):
-        """brax's loop from ``initial``; ``evaluate(agent) -> return`` runs after every PPO
-        epoch."""
+    def train_external(total_steps: int, report, initial, evaluate=None, seed: int | None = None):
+        """brax's loop from ``initial`` with brax's seed ``seed`` (default: the run's);
+        ``evaluate(agent) -> return`` runs after every PPO epoch."""
+        seed = ctx.seed if seed is None else int(seed)
         subset = not seen.all()
         train_factory = (
             variant_factory(factory, space, seen, sc.transfer_variant, sc.penalty_coef, head_mask)
@@ -155,8 +156,10 @@ def build(
         )
         brax_env = BraxFlatEnv(env, controlled=seen if subset else None)
         if loop == "sac":
-            return _train_sac(sc, ctx, brax_env, total_steps, train_factory, report, initial)
-        return _train_ppo(sc, ctx, brax_env, total_steps, train_factory, report, initial, evaluate)
+            return _train_sac(sc, ctx, brax_env, total_steps, train_factory, report, initial, seed)
+        return _train_ppo(
+            sc, ctx, brax_env, total_steps, train_factory, report, initial, evaluate, seed
+        )
 
     off = OffPolicyAlgorithm(name, init, act, None, None, len(idx), space.max_dim)
     metrics = SAC_METRICS if loop == "sac" else PPO_METRICS
@@ -202,6 +205,7 @@ def _train_ppo(
     report,
     initial,
     evaluate=None,
+    seed: int = 0,
 ):
     """brax's PPO loop, started from ``initial`` = ``(normalizer, policy, value)``.
 
@@ -259,7 +263,7 @@ def _train_ppo(
         gae_lambda=p.gae_lambda,
         max_grad_norm=p.max_grad_norm,
         network_factory=factory,
-        seed=ctx.seed,
+        seed=seed,
         num_evals=epochs + 1,
         run_evals=False,
         progress_fn=progress,
@@ -270,7 +274,14 @@ def _train_ppo(
 
 
 def _train_sac(
-    sc: SingleAgentConfig, ctx: BuildContext, brax_env, total: int, factory, report, initial
+    sc: SingleAgentConfig,
+    ctx: BuildContext,
+    brax_env,
+    total: int,
+    factory,
+    report,
+    initial,
+    seed: int,
 ):
     """brax's SAC loop, its policy started from ``initial[1]`` (the normaliser statistics and the Q
     networks start from brax's own initialisation: a fine-tuning run re-learns its Q networks)."""
@@ -303,7 +314,7 @@ def _train_sac(
         num_eval_envs=ctx.eval_episodes,
         learning_rate=sc.learning_rate,
         discounting=sc.discounting,
-        seed=ctx.seed,
+        seed=seed,
         batch_size=s.batch_size,
         num_evals=epochs + 1,
         normalize_observations=sc.normalize_observations,

@@ -118,7 +118,7 @@ def hppo_head_mask(space, unseen: np.ndarray, params) -> dict:
     }
 
 
-def make_hppo(sc: SingleAgentConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_hppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
     """H-PPO on brax's PPO loop."""
     factory = make_hppo_networks(ctx.space, sc.hidden, sc.head_hidden)
     return brax_agents.build(sc, ctx, "hppo", "ppo", factory, hppo_head_mask)

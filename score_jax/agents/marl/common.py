@@ -187,7 +187,7 @@ def make_sac_baseline(
     def act(state, obs, key, deterministic):
         return nets.policy_fn(state.actor, state.consts, obs, key, deterministic)[0]
 
-    init = lambda k: nets.init(k, consts, optimizers)
+    init = lambda k, frozen=None: nets.init(k, consts, optimizers)
     kind: CriticKind = nets.critic_kind
     update = make_sac_update(nets.policy_fn, nets.q_fn, *optimizers, critic=kind)
     return make_algorithm(name, init, act, update, sac_hyper(m, ctx.env), ctx, nets, grow_sac)

@@ -62,6 +62,6 @@ class ISACNetworks(mc.SACAgentNetworks):
         )["params"]
 
 
-def make_isac(m: MarlConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_isac(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     """ISAC on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
     return mc.make_sac_baseline("isac", ISACNetworks, m, ctx)

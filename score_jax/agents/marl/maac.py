@@ -102,6 +102,6 @@ class MAACNetworks(mc.SACAgentNetworks):
         )["params"]
 
 
-def make_maac(m: MarlConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_maac(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     """MAAC on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
     return mc.make_sac_baseline("maac", MAACNetworks, m, ctx)

@@ -95,7 +95,7 @@ class MADDPGNetworks(mc.AgentNetworks):
         )
 
 
-def make_maddpg(m: MarlConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_maddpg(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     """MADDPG on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
     nets = MADDPGNetworks.for_context(m, ctx)
     consts = mc.marl_consts(m, ctx)
@@ -111,5 +111,5 @@ def make_maddpg(m: MarlConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
     hyper = DDPGHyper(
         gamma=f(m.gamma), tau=f(m.tau), reward_scale=f(m.resolved_reward_scale(ctx.env))
     )
-    init = lambda k: nets.init(k, consts, optimizers, m.maddpg_noise)
+    init = lambda k, frozen=None: nets.init(k, consts, optimizers, m.maddpg_noise)
     return mc.make_algorithm("maddpg", init, act, update, hyper, ctx, nets)

@@ -229,7 +229,7 @@ def grow_qmix(src: QMIXState, template: QMIXState, p, key: jax.Array) -> QMIXSta
     )
 
 
-def make_qmix(m: MarlConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
+def make_qmix(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     """QMIX on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
     width, n = ctx.width, ctx.n_agents
     nets = QMIXNetworks(m, ctx.env.observation_size, n)
@@ -244,7 +244,7 @@ def make_qmix(m: MarlConfig, ctx: BuildContext, key: jax.Array) -> Algorithm:
     )  # env steps -> updates
     epsilon = EpsilonSchedule(f(m.qmix_eps_start), f(m.qmix_eps_end), f(decay_updates))
 
-    def init(k):
+    def init(k, frozen=None):
         params = nets.init(k)
         return QMIXState(
             params, params, opt.init(params), consts, epsilon, jnp.zeros((), jnp.int32)

@@ -36,8 +36,8 @@ from score_jax.networks.hvae import (
     HVAEConfig,
     HVAEMetrics,
     ObservationSets,
+    hvae_train_step,
     init_hvae,
-    make_hvae_train_step,
     make_optimizer,
     space_embeddings,
 )
@@ -166,7 +166,8 @@ def collect_observation_sets(
 
     Args:
       env: a CompositeEnv (hashable; used as a static argument).
-      key: PRNG key.
+      key: PRNG key, or ``[K, 2]`` keys: K independent collections in one call (leading K axis
+        on every field of the result).
       agents: indices of the sub-spaces to collect for (S of them).
       k: number of random fixings a_{-i}^k of the other sub-spaces per sub-space.
       j: number of random sub-actions a_{i,j}^k per fixing.
@@ -197,7 +198,7 @@ def collect_observation_sets(
     if fixed.shape != (space.n,):
         raise ValueError(f"fixed_default must have shape ({space.n},), got {fixed.shape}")
     static = (agents, int(k), int(j), int(t), int(action_width), int(warmup_steps))
-    return _collector(env, static)(key, fixed)
+    return _collector(env, static, batched=jnp.ndim(key) > 1)(key, fixed)
 
 
 # One compiled collector per (environment object, static sizes). Environments may hold arrays
@@ -206,11 +207,14 @@ def collect_observation_sets(
 _COLLECTORS: dict[tuple, tuple[object, Callable]] = {}
 
 
-def _collector(env, static: tuple) -> Callable:
-    cache_key = (id(env), static)
+def _collector(env, static: tuple, batched: bool = False) -> Callable:
+    cache_key = (id(env), static, batched)
     hit = _COLLECTORS.get(cache_key)
     if hit is None or hit[0] is not env:
-        hit = (env, jax.jit(lambda key, fixed: _collect(env, key, *static, fixed)))
+        collect = lambda key, fixed: _collect(env, key, *static, fixed)
+        if batched:
+            collect = jax.vmap(collect, in_axes=(0, None))
+        hit = (env, jax.jit(collect))
         _COLLECTORS[cache_key] = hit
     return hit[1]
 
@@ -231,28 +235,40 @@ def train_hvae(
 ) -> HVAEResult:
     """Collect observation sets of ``agents`` and train the HVAE on eq. 2 for ``steps`` steps.
 
-    ``progress(step, metrics)`` is called every ``log_every`` steps and at the end.
+    ``key``: one PRNG key, or ``[K, 2]`` keys: K independent trainings (independent data, init
+    and sampling) in one vmapped program, every field of the result with a leading K axis
+    (``history [K, steps]``). ``progress(step, metrics)`` is called every ``log_every`` steps and
+    at the end (with the metrics averaged over the K trainings).
     """
-    key_data, key_init, key_train = jax.random.split(key, 3)
+    single = jnp.ndim(key) == 1
+    keys = key[None] if single else key
+    split3 = jax.vmap(lambda kk: jax.random.split(kk, 3))(keys)
+    key_data, key_init, key_train = split3[:, 0], split3[:, 1], split3[:, 2]
     sets = collect_observation_sets(
         env, key_data, agents, k, j, config.predict_steps, action_width, warmup_steps, fixed_default
     )
     model = HVAE(config, env.observation_size, action_width)
-    params = init_hvae(model, key_init, sets)
+    params = jax.vmap(lambda kk, s: init_hvae(model, kk, s))(key_init, sets)
     optimizer = make_optimizer(config)
-    opt_state = optimizer.init(params)
-    step = make_hvae_train_step(model, optimizer)
+    opt_state = jax.vmap(optimizer.init)(params)
+    step = jax.jit(jax.vmap(hvae_train_step(model, optimizer)))
+    step_keys = jax.vmap(lambda kk: jax.random.split(kk, steps))(key_train)  # [K, steps, 2]
     losses, elbos, metrics = [], [], None
-    for i, key_step in enumerate(jax.random.split(key_train, steps)):
-        params, opt_state, metrics = step(params, opt_state, sets, key_step)
+    for i in range(steps):
+        params, opt_state, metrics = step(params, opt_state, sets, step_keys[:, i])
         losses.append(metrics.loss)
         elbos.append(metrics.elbo)
         if progress is not None and ((i + 1) % log_every == 0 or i + 1 == steps):
-            progress(i + 1, metrics)
-    c = space_embeddings(model, params, sets)
-    return HVAEResult(
-        model, params, c, metrics, np.asarray(jnp.stack(losses)), np.asarray(jnp.stack(elbos))
-    )
+            progress(i + 1, jax.tree.map(lambda m: jnp.mean(m), metrics))
+    c = jax.vmap(lambda p, s: space_embeddings(model, p, s))(params, sets)
+    history, elbo_history = np.asarray(jnp.stack(losses, 1)), np.asarray(jnp.stack(elbos, 1))
+    result = HVAEResult(model, params, c, metrics, history, elbo_history)
+    if single:
+        squeeze = lambda tree: jax.tree.map(lambda x: x[0], tree)
+        result = HVAEResult(
+            model, squeeze(params), c[0], squeeze(metrics), history[0], elbo_history[0]
+        )
+    return result
 
 
 def embed_new_spaces(
@@ -287,10 +303,10 @@ def embed_new_spaces(
 
 
 def pretrain(
-    env, agent_index, cfg: ScoreConfig, width: int, key: jax.Array, log=print, fixed_default=None
+    env, agent_index, cfg: ScoreConfig, width: int, keys: jax.Array, log=print, fixed_default=None
 ) -> FrozenInputs:
-    """The ASRL stage (§4.1): HVAE trained on random-policy observation sets of the agents'
-    sub-spaces."""
+    """The ASRL stage (§4.1): the HVAE trained on random-policy observation sets of the agents'
+    sub-spaces, for every seed at once: ``keys [K, 2]`` -> FrozenInputs with a leading K axis."""
     if not cfg.critic.asrl:
         return FrozenInputs(None, None)
 
@@ -302,7 +318,7 @@ def pretrain(
 
     result = train_hvae(
         env,
-        key,
+        keys,
         cfg.hvae,
         agents=[int(i) for i in agent_index],
         k=cfg.asrl_k,
