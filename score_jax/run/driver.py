@@ -25,7 +25,9 @@ from score_jax.run.build import Run, build, saved_transfer
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
 from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_dict, to_dict
 from score_jax.run.external import RESUME_ERROR, fit_external
+from score_jax.run.provenance import provenance
 from score_jax.run.recorder import NonFiniteError, RunRecorder
+from score_jax.run.summary import announce, resolved_config, tracking_kinds
 from score_jax.run.trainer import TrainState
 
 __all__ = ["NonFiniteError", "Run", "train"]
@@ -75,6 +77,7 @@ def train(
         cfg = dataclasses.replace(saved, resume=cfg.resume, run_dir=cfg.resume, quiet=cfg.quiet)
         transfer = saved_transfer(meta)
     run_dir = default_run_dir(cfg)
+    announce(cfg, run_dir, log)  # the header, before any heavy set-up
     os.makedirs(run_dir, exist_ok=True)
     key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
 
@@ -98,7 +101,12 @@ def train(
     if not cfg.resume:
         dump_json(
             os.path.join(run_dir, "config.json"),
-            {**to_dict(cfg), "resolved": run.spec.to_dict(), "transfer": run.meta()["transfer"]},
+            {
+                **to_dict(cfg),
+                "resolved": resolved_config(cfg, run.spec, run.env, run.agent_index),
+                "provenance": provenance(),
+                "transfer": run.meta()["transfer"],
+            },
         )
 
     if external:
@@ -131,6 +139,10 @@ def _recorder(run: Run, resume_from: int | None, log, on_epoch) -> RunRecorder:
         resume_from,
         log,
         on_row,
+        track=tracking_kinds(run.config),
+        wandb_project=run.config.wandb_project,
+        wandb_mode=run.config.wandb_mode,
+        wandb_config={**to_dict(run.config), "resolved": run.spec.to_dict()},
     )
 
 

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from score_jax.run.best_policy import BestPolicy
-from score_jax.run.writers import CsvWriter, truncate_csv
+from score_jax.run.writers import make_writers, truncate_csv
 
 METRICS_CSV = "metrics.csv"
 
@@ -62,6 +62,9 @@ class RunRecorder:
     ``resume_from``: on resume, the decision count of the restored checkpoint (rows after it
     are produced again, so they are dropped); None for a new run (the file is started anew).
     ``meta``: the run's checkpoint metadata, saved with the best policy.
+    ``track``: metric writers besides the CSV file (``tensorboard``, ``wandb``; see
+    ``run.writers.make_writers``); ``wandb_project``, ``wandb_mode``, ``wandb_config``: the W&B
+    run's project, mode and config.
     """
 
     def __init__(
@@ -75,6 +78,10 @@ class RunRecorder:
         resume_from: int | None = None,
         log=print,
         on_row: Callable | None = None,
+        track: tuple[str, ...] = ("csv",),
+        wandb_project: str = "score-jax",
+        wandb_mode: str | None = None,
+        wandb_config: dict | None = None,
     ):
         path = os.path.join(run_dir, METRICS_CSV)
         if resume_from is None:
@@ -83,7 +90,16 @@ class RunRecorder:
         else:
             truncate_csv(path, resume_from)
         self.columns = list(columns)
-        self.csv = CsvWriter(path, self.columns)
+        self.writer = make_writers(
+            track,
+            run_dir,
+            csv_name=METRICS_CSV,
+            csv_columns=self.columns,
+            project=wandb_project,
+            config=wandb_config,
+            wandb_mode=wandb_mode,
+            name=os.path.basename(os.path.abspath(run_dir)),
+        )
         self.progress = Progress(total, resume_from or 0, quiet)
         self.best = BestPolicy(run_dir, fresh=resume_from is None) if keep_best else None
         self.meta, self.log, self.on_row = meta, log, on_row
@@ -96,7 +112,7 @@ class RunRecorder:
         evaluated (kept when the best so far). Returns the full row."""
         full = {c: math.nan for c in self.columns}
         full.update(row, wall_s=round(time.time() - self.t0, 2))
-        self.csv.write(int(env_steps), full)
+        self.writer.write(int(env_steps), full)
         episode = full.get("episode_return", math.nan)
         if not math.isnan(episode):
             self.recent = (self.recent + [episode])[-10:]
@@ -120,6 +136,6 @@ class RunRecorder:
 
     def close(self) -> None:
         self.progress.close()
-        self.csv.close()
+        self.writer.close()
         if self.best is not None:
             self.best.close()
