@@ -14,15 +14,21 @@ from score_jax.run.checkpoint import dump_json
 from score_jax.run.episodes import evaluate, reference_policies
 
 
-def final_evaluation(run, n_episodes: int, log=print) -> dict:
+def final_evaluation(
+    run, n_episodes: int, log=print, learned: dict | None = None, path: str | None = None
+) -> dict:
     """Mean/std return of the trained policy (the last one, and the best-evaluated one when the
     run kept it) and of each reference, over the same seeds; printed as a table and written to
-    ``evaluation.json``."""
+    ``evaluation.json`` in the run directory.
+
+    ``learned``: ``{label: agent state}`` to evaluate instead of the last and best policies;
+    ``path``: where the JSON goes instead."""
     key = jax.random.PRNGKey(run.config.seed + 20_000)
-    learned = {run.config.algo: run.state.agent}
-    if has_best(run.run_dir):
-        agent, meta = restore_best(run.run_dir, run.state.agent)
-        learned[f"{run.config.algo} (best, step {meta['step']})"] = agent
+    if learned is None:
+        learned = {run.config.algo: run.state.agent}
+        if has_best(run.run_dir):
+            agent, meta = restore_best(run.run_dir, run.state.agent)
+            learned[f"{run.config.algo} (best, step {meta['step']})"] = agent
     rows = {}
     for name, agent in learned.items():  # one compiled evaluator, the parameters an argument
         r = np.asarray(run.evaluate(agent, n_episodes, key=key).returns)
@@ -47,7 +53,8 @@ def final_evaluation(run, n_episodes: int, log=print) -> dict:
     ]
     log("\n".join(lines))
     dump_json(
-        os.path.join(run.run_dir, "evaluation.json"), {"episodes": n_episodes, "returns": rows}
+        path or os.path.join(run.run_dir, "evaluation.json"),
+        {"episodes": n_episodes, "returns": rows},
     )
     return rows
 
@@ -128,9 +135,14 @@ def _save(fig, ax, path: str, title: str, ylabel: str) -> None:
     plt.close(fig)
 
 
-def render_policy(run, steps: int, out_dir: str, log=print) -> None:
-    """Render a deterministic episode of the trained policy (Spider) to PNG frames and a GIF."""
-    from envs.spider.render import render_rollout  # deferred: imports MuJoCo's renderer
+def render_policy(
+    run, steps: int, out_dir: str, log=print, png: bool = True, mp4: bool = False
+) -> dict:
+    """Render a deterministic episode of the trained policy (Spider) to PNG frames (``png``), a
+    GIF and, with ``mp4``, an MP4 (GIF only, with a note, when imageio-ffmpeg is missing).
+    Returns the written paths by format."""
+    # deferred: imports MuJoCo's renderer
+    from envs.spider.render import mp4_unavailable_reason, render_rollout
 
     env, act = run.env, run.algo.policy(run.state.agent)
     if not hasattr(env, "mj_model"):
@@ -150,8 +162,10 @@ def render_policy(run, steps: int, out_dir: str, log=print) -> None:
     qpos, done = np.asarray(qpos), np.asarray(done)
     end = int(np.argmax(done)) + 1 if done.any() else steps
     qpos = np.concatenate([np.asarray(state.sim.data.qpos), qpos[:end]])
-    files = render_rollout(env.mj_model, qpos, out_dir, fps=1.0 / env.dt)
-    log(
-        f"rendered {len(qpos)} frames to {out_dir} "
-        f"({', '.join(str(p) for p in files.get('gif', []))})"
-    )
+    if mp4 and (reason := mp4_unavailable_reason()) is not None:
+        log(f"no MP4 ({reason}); writing the GIF only")
+        mp4 = False
+    files = render_rollout(env.mj_model, qpos, out_dir, fps=1.0 / env.dt, png=png, mp4=mp4)
+    videos = [str(p) for p in files.get("gif", []) + files.get("mp4", [])]
+    log(f"rendered {len(qpos)} frames to {out_dir} ({', '.join(videos)})")
+    return files
