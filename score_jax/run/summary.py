@@ -61,8 +61,8 @@ def _evaluation(cfg: TrainConfig, spec: RunSpec) -> str:
     n = spec.total_steps // spec.eval_every
     kept = "; the best policy kept in <run dir>/best" if cfg.keep_best else ""
     return (
-        f"every {spec.eval_every} decisions ({n} evaluations), {cfg.eval_episodes} episodes "
-        f"each{kept}"
+        f"every {spec.eval_every} decisions ({n} evaluation{'s' if n != 1 else ''}), "
+        f"{cfg.eval_episodes} episodes each{kept}"
     )
 
 
