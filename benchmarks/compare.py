@@ -109,8 +109,8 @@ class CompareArgs:
     """Deterministic evaluations per run (learning-curve points)."""
     eval_episodes: int = 10
     """Episodes per evaluation."""
-    out: str = os.path.join(ROOT, "benchmarks", "results")
-    """Where the tables and plots go."""
+    out: str = os.path.join(ROOT, "runs", "benchmarks")
+    """Where the tables and plots go (the committed ones: --out benchmarks/results)."""
     work_dir: str = os.path.join(ROOT, "runs", "compare")
     """Where the runs go."""
     base: TrainConfig = TrainConfig(robustness_seeds=0, quiet=True)

@@ -42,7 +42,7 @@ from envs.greenhouse.season import summarize  # noqa: E402
 from envs.greenhouse.weather import bundled_weather_path  # noqa: E402
 from envs.wrappers import ActionRepeat  # noqa: E402
 
-RESULTS = os.path.join(ROOT, "benchmarks", "results")
+OUT = os.path.join(ROOT, "runs", "benchmarks")  # the committed results: --out benchmarks/results
 CLIMATES = {"greensboro": None, "sand_point": "703165TY.csv"}
 LABELS = {
     "greensboro": "Greensboro NC (723170TYA.CSV)",
@@ -225,12 +225,12 @@ def main(argv=None):
     ap.add_argument(
         "--out",
         default=None,
-        help="folder for greenhouse_references.{json,md}: default benchmarks/results (none with "
-        "--quick); '' = do not write",
+        help="folder for greenhouse_references.{json,md}: default runs/benchmarks (none with "
+        "--quick; the committed results: benchmarks/results); '' = do not write",
     )
     ap.add_argument("--quick", action="store_true", help="tiny budgets: tests the script only")
     args = ap.parse_args(argv)
-    out = args.out if args.out is not None else ("" if args.quick else RESULTS)
+    out = args.out if args.out is not None else ("" if args.quick else OUT)
     meta = {
         "device": str(jax.devices()[0]),
         "platform": platform.platform(),

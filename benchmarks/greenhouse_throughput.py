@@ -9,7 +9,8 @@ measured separately (AOT ``lower().compile()``); every timed call ends with
     python benchmarks/greenhouse_throughput.py                      # 1, 64, 1024, 4096
     python benchmarks/greenhouse_throughput.py --batch-sizes 1 256 --repeats 5
 
-Writes ``benchmarks/results/greenhouse_throughput.json`` and ``.md`` (a table).
+Writes ``greenhouse_throughput.json`` and ``.md`` (a table) to ``--out`` (default
+``runs/benchmarks``; the committed results: ``--out benchmarks/results``).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ import jax  # noqa: E402
 
 from envs.greenhouse.env import make_greenhouse  # noqa: E402
 
-RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+OUT = os.path.join(ROOT, "runs", "benchmarks")  # the committed results: --out benchmarks/results
 
 
 def make_season_fn(env, batch: int, days: int):
@@ -111,8 +113,9 @@ def main(argv=None):
     ap.add_argument("--substeps-per-hour", type=int, default=1)
     ap.add_argument(
         "--out",
-        default=RESULTS,
-        help="folder for greenhouse_throughput.{json,md}; '' = do not write",
+        default=OUT,
+        help="folder for greenhouse_throughput.{json,md} (default runs/benchmarks; the committed "
+        "results: benchmarks/results); '' = do not write",
     )
     args = ap.parse_args(argv)
 

@@ -9,7 +9,10 @@ timed twice: on one device, and with its settings sharded over all devices
 (``score_jax.robustness.shard_settings``, what ``run_sweep`` does). The loop runs on one
 device: each call is one sequential episode, and a Python loop issues them one at a time.
 
-    python benchmarks/robustness_sweep.py --env greenhouse --seeds 10 [--run-dir RUN]
+    python benchmarks/robustness_sweep.py --env greenhouse --seeds 10 [--run-dir RUN] [--out DIR]
+
+Writes ``robustness_sweep_<env>[_repeat<k>].{json,md}`` to ``--out`` (default
+``runs/benchmarks``; the committed results: ``--out benchmarks/results``).
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ from score_jax.run.build import build, restore_run
 from score_jax.run.config import TrainConfig
 from score_jax.run.episodes import evaluate
 
-RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+OUT = os.path.join(ROOT, "runs", "benchmarks")  # the committed results: --out benchmarks/results
 
 
 def timed(f, *args):
@@ -56,6 +60,12 @@ def main():
         help=(
             "a trained run (default: an untrained SCORE policy; speed does not depend on training)"
         ),
+    )
+    p.add_argument(
+        "--out",
+        default=OUT,
+        help="folder for the JSON and markdown (default runs/benchmarks; the committed results: "
+        "benchmarks/results)",
     )
     args = p.parse_args()
     if args.run_dir:
@@ -145,8 +155,8 @@ def main():
     }
     result["action_repeat"] = int(getattr(run.env, "repeat", 1))
     suffix = f"_repeat{args.action_repeat}" if args.action_repeat else ""
-    os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, f"robustness_sweep_{args.env}{suffix}.json"), "w") as f:
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, f"robustness_sweep_{args.env}{suffix}.json"), "w") as f:
         json.dump(result, f, indent=2)
     table = "\n".join(
         [
@@ -176,7 +186,7 @@ def main():
             ),
         ]
     )
-    with open(os.path.join(RESULTS, f"robustness_sweep_{args.env}{suffix}.md"), "w") as f:
+    with open(os.path.join(args.out, f"robustness_sweep_{args.env}{suffix}.md"), "w") as f:
         f.write(table + "\n")
     print(table)
 

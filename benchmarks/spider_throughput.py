@@ -14,7 +14,8 @@ wants every core. The script therefore splits the CPU into one XLA host device p
 twice: on one device, and sharded over all of them on a ``data`` mesh axis (the same
 ``jax.sharding`` layout the trainer uses). Plain MuJoCo stays one C thread, as the issue asks.
 
-    python benchmarks/spider_throughput.py  # writes benchmarks/results/spider_throughput.{json,md}
+    python benchmarks/spider_throughput.py  # writes runs/benchmarks/spider_throughput.{json,md}
+    python benchmarks/spider_throughput.py --out benchmarks/results   # the committed results
 """
 
 from __future__ import annotations
@@ -94,7 +95,14 @@ def main(argv=None) -> dict:
         "--mujoco-steps", type=int, default=2000, help="env steps per timed MuJoCo run"
     )
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out-dir", default=str(Path(__file__).parent / "results"))
+    parser.add_argument(
+        "--out",
+        "--out-dir",
+        dest="out_dir",
+        default=str(Path(__file__).resolve().parent.parent / "runs" / "benchmarks"),
+        help="folder for spider_throughput.{json,md} (default runs/benchmarks; the committed "
+        "results: benchmarks/results)",
+    )
     args = parser.parse_args(argv)
 
     env = make_spider()

@@ -6,7 +6,10 @@ action). Reported: env steps/s and gradient updates/s after compilation (best of
 stretches for both, brax's being its evaluation intervals), SCORE's update-step compile time,
 and the ratio SCORE / brax SAC (target >= 0.5).
 
-    python benchmarks/train_throughput.py --envs greenhouse spider
+    python benchmarks/train_throughput.py --envs greenhouse spider [--out DIR]
+
+Writes ``train_throughput.{json,md}`` to ``--out`` (default ``runs/benchmarks``; the committed
+results: ``--out benchmarks/results``).
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ from score_jax.agents.score.config import ScoreConfig
 from score_jax.run.build import build
 from score_jax.run.config import OffPolicyConfig, TrainConfig
 
-RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+OUT = os.path.join(ROOT, "runs", "benchmarks")  # the committed results: --out benchmarks/results
 
 
 def score_throughput(
@@ -125,6 +129,12 @@ def main():
     p.add_argument("--batch-size", type=int, default=128)
     p.add_argument("--epochs", type=int, default=5)
     p.add_argument("--steps-per-epoch", type=int, default=50)
+    p.add_argument(
+        "--out",
+        default=OUT,
+        help="folder for train_throughput.{json,md} (default runs/benchmarks; the committed "
+        "results: benchmarks/results)",
+    )
     args = p.parse_args()
     results = []
     for name in args.envs:
@@ -155,8 +165,8 @@ def main():
         "devices": [str(d) for d in jax.devices()],
         "cpu_count": os.cpu_count(),
     }
-    os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, "train_throughput.json"), "w") as f:
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "train_throughput.json"), "w") as f:
         json.dump({"meta": meta, "results": results}, f, indent=2)
     lines = [
         (
@@ -172,7 +182,7 @@ def main():
             f"{r['ratio_env_steps']:.2f} | {r['score']['update_compile_s']:.1f} |"
         )
     table = "\n".join(lines)
-    with open(os.path.join(RESULTS, "train_throughput.md"), "w") as f:
+    with open(os.path.join(args.out, "train_throughput.md"), "w") as f:
         f.write(
             f"num_envs={args.num_envs}, batch={args.batch_size}, 1 update per vectorised env step, "
             f"{meta['devices']}\n\n{table}\n"

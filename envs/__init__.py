@@ -5,6 +5,7 @@ Environments are imported lazily so that using the greenhouse never imports MuJo
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 
 from envs.base import CompositeEnv, EnvHints, EnvState, missing_members
@@ -31,7 +32,16 @@ def registered_names() -> list[str]:
 
 
 def factory(name: str) -> Callable[..., CompositeEnv]:
-    """The factory registered under ``name`` (imported on first use)."""
+    """The factory registered under ``name`` (imported on first use). An unregistered name of the
+    form ``"module:function"`` registers that factory under itself first, so a command line can
+    name any importable environment (``score-train --env mypkg.envs:make_myenv``)."""
+    if name not in _REGISTRY and isinstance(name, str) and name.count(":") == 1:
+        module, attribute = name.split(":")
+        try:
+            fn = getattr(importlib.import_module(module), attribute)
+        except (ImportError, AttributeError) as e:
+            raise ValueError(f"cannot import the environment factory {name!r}: {e}") from e
+        _REGISTRY.register(name, fn)
     return _REGISTRY.get(name)
 
 

@@ -88,12 +88,15 @@ def test_masked_agent_gets_no_actor_gradient(finished_run):
 def test_sigkill_then_resume_equals_uninterrupted(finished_run, tmp_path):
     run_dir = tmp_path / "killed"
     env = {**os.environ, "PYTHONPATH": ROOT}
+    # stderr to a file, not an unread pipe: XLA logs a few kB per persistent-cache hit, and a
+    # full pipe would block the child before its first checkpoint
+    stderr = open(tmp_path / "stderr.txt", "w+")
     proc = subprocess.Popen(
         [sys.executable, "train.py", *tiny_cli_args(run_dir)],
         cwd=ROOT,
         env=env,
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+        stderr=stderr,
         stdin=subprocess.DEVNULL,
     )
     deadline = time.time() + 600
@@ -107,10 +110,11 @@ def test_sigkill_then_resume_equals_uninterrupted(finished_run, tmp_path):
             break
         time.sleep(0.2)
     assert proc.poll() is None, (
-        f"train.py ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+        f"train.py ended before it could be killed: {open(stderr.name).read()[-2000:]}"
     )
     proc.send_signal(signal.SIGKILL)
     proc.wait()
+    stderr.close()
     killed_at = Checkpointer(str(run_dir)).latest_step()
     assert killed_at is not None and killed_at < 1000
     out = subprocess.run(

@@ -41,16 +41,18 @@ IRRIGATION_DEFAULT = (7.0, 17.0)
 
 def _hours(name: str, default: tuple[float, float], discrete: bool) -> SubSpace:
     if discrete:
-        return SubSpace(name, "discrete", 2, (0.0, 0.0), (23.0, 23.0), default, n_choices=24)
-    return SubSpace(name, "continuous", 2, (0.0, 0.0), (24.0, 24.0), default)
+        return SubSpace(
+            name, "discrete", 2, (0.0, 0.0), (23.0, 23.0), default, n_choices=24, units="h"
+        )
+    return SubSpace(name, "continuous", 2, (0.0, 0.0), (24.0, 24.0), default, units="h")
 
 
 def greenhouse_space(discrete_hours: bool = True) -> CompositeSpace:
     """The 4 sub-spaces of Table 1 (52 dims): temperature, co2, lighting, irrigation."""
     return CompositeSpace(
         (
-            SubSpace.continuous("temperature", 24, 13.0, 25.0, 19.0),
-            SubSpace.continuous("co2", 24, 400.0, 700.0, 550.0),
+            SubSpace.continuous("temperature", 24, 13.0, 25.0, 19.0, units="°C"),
+            SubSpace.continuous("co2", 24, 400.0, 700.0, 550.0, units="ppm"),
             _hours("lighting", LIGHTING_DEFAULT, discrete_hours),
             _hours("irrigation", IRRIGATION_DEFAULT, discrete_hours),
         )

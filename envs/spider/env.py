@@ -102,12 +102,18 @@ class SpiderMetrics:
     torso_z: jax.Array
 
 
+TORQUE_UNITS = "normalised torque"  # a motor's control ctrl in [-1, 1]: torque = gear * ctrl
+
+
 def leg_space(legs: Sequence[LegSpec]) -> CompositeSpace:
     """One continuous sub-space ``leg_<name>`` in [-1, 1] (default 0) per leg, dim = its
     actuators."""
     return CompositeSpace(
         tuple(
-            SubSpace.continuous(leg.subspace_name, leg.n_actuators, -1.0, 1.0, 0.0) for leg in legs
+            SubSpace.continuous(
+                leg.subspace_name, leg.n_actuators, -1.0, 1.0, 0.0, units=TORQUE_UNITS
+            )
+            for leg in legs
         )
     )
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -101,19 +102,35 @@ def render_frames(
         renderer.close()
 
 
+def mp4_unavailable_reason() -> str | None:
+    """None when MP4 files can be written (imageio's ffmpeg plugin, ``imageio-ffmpeg``, finds an
+    ffmpeg binary), else why not and how to fix it."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        return 'MP4 needs imageio-ffmpeg: pip install -e ".[render]"'
+    try:
+        imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as err:
+        return f"imageio-ffmpeg finds no ffmpeg binary ({err})"
+    return None
+
+
 def save_frames(
     frames: Sequence[np.ndarray],
     out_dir: str | Path,
     fps: float = 20.0,
     png: bool = True,
     gif: bool = True,
+    mp4: bool = False,
 ) -> dict[str, list[Path]]:
-    """Write ``frame_XXXX.png`` files and/or ``rollout.gif`` into ``out_dir``; returns the paths."""
+    """Write ``frame_XXXX.png`` files, ``rollout.gif`` and/or ``rollout.mp4`` (H.264, needs
+    ``imageio-ffmpeg``: see ``mp4_unavailable_reason``) into ``out_dir``; returns the paths."""
     import imageio.v3 as iio
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    written: dict[str, list[Path]] = {"png": [], "gif": []}
+    written: dict[str, list[Path]] = {"png": [], "gif": [], "mp4": []}
     if png:
         for i, frame in enumerate(frames):
             path = out_dir / f"frame_{i:04d}.png"
@@ -123,6 +140,20 @@ def save_frames(
         path = out_dir / "rollout.gif"
         iio.imwrite(path, np.stack(frames), duration=1000.0 / fps, loop=0)
         written["gif"].append(path)
+    if mp4 and frames:
+        reason = mp4_unavailable_reason()
+        if reason is not None:
+            raise RuntimeError(reason)
+        import imageio.v2 as iio2
+
+        path = out_dir / "rollout.mp4"
+        with warnings.catch_warnings():
+            # imageio-ffmpeg starts ffmpeg with subprocess (fork + exec at once): Python warns
+            # about os.fork under JAX's threads, which does not apply to an immediate exec
+            warnings.filterwarnings("ignore", message=r"os\.fork\(\)", category=RuntimeWarning)
+            # macro_block_size 8: 480 x 360 frames are encoded as they are (16 would rescale)
+            iio2.mimwrite(path, list(frames), fps=fps, macro_block_size=8)
+        written["mp4"].append(path)
     return written
 
 
@@ -135,13 +166,14 @@ def render_rollout(
     height: int = 360,
     png: bool = True,
     gif: bool = True,
+    mp4: bool = False,
 ) -> dict[str, list[Path]]:
-    """Render ``qpos [T, nq]`` (e.g. ``Trajectory.qpos[:, b]``) to PNG frames and a GIF in
-    ``out_dir``.
+    """Render ``qpos [T, nq]`` (e.g. ``Trajectory.qpos[:, b]``) to PNG frames, a GIF and/or an
+    MP4 in ``out_dir``.
 
     ``fps`` should be ``1 / env.dt`` (20 for the default Spider) for real-time playback.
     """
-    return save_frames(render_frames(model, qpos, width, height), out_dir, fps, png, gif)
+    return save_frames(render_frames(model, qpos, width, height), out_dir, fps, png, gif, mp4)
 
 
 def gait_rollout_qpos(env, steps: int, seed: int = 0) -> np.ndarray:

@@ -16,6 +16,7 @@ import tyro
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import restore_run
 from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.compile_cache import enable_compile_cache
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,9 +29,12 @@ class RobustnessArgs:
     """Seeds per (count, mode) setting."""
     policy: Literal["best", "last"] = "best"
     """Sweep the run's best-evaluated policy (when it kept one) or its last one."""
+    compile_cache: bool = True
+    """JAX's persistent compilation cache (see score-train --help)."""
 
 
 def main(args: RobustnessArgs) -> int:
+    enable_compile_cache(enabled=args.compile_cache)
     try:
         run = restore_run(args.run_dir, policy=args.policy)
     except CheckpointError as e:

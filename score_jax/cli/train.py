@@ -3,6 +3,8 @@
 score-train                                  # SCORE on the greenhouse, laptop-sized defaults
 score-train --env spider --total-steps 200000
 score-train --resume runs/greenhouse-score-s0
+score-train --env spider --describe          # the sub-spaces --subspaces accepts, and presets
+score-train --track tensorboard wandb        # metrics.csv + TensorBoard + W&B (offline)
 score-train --help                           # every option
 """
 
@@ -18,12 +20,18 @@ from score_jax.evaluation.report import final_evaluation, render_policy
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import with_best_policy
 from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.compile_cache import enable_compile_cache
 from score_jax.run.config import TrainConfig
 from score_jax.run.driver import NonFiniteError, train
+from score_jax.run.summary import describe_environment
 
 
 def main(cfg: TrainConfig) -> int:
+    enable_compile_cache(enabled=cfg.compile_cache)
     try:
+        if cfg.describe:
+            print(describe_environment(cfg.env, cfg.env_overrides()))
+            return 0
         run = train(cfg)
     except (NonFiniteError, CheckpointError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -15,10 +15,12 @@ import tyro
 
 from score_jax.evaluation.transfer import TransferArgs, run_transfer
 from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.compile_cache import enable_compile_cache
 from score_jax.run.recorder import NonFiniteError
 
 
 def main(args: TransferArgs) -> int:
+    enable_compile_cache(enabled=args.compile_cache)
     try:
         run_transfer(args)
     except (CheckpointError, NonFiniteError, ValueError, KeyError) as e:

@@ -38,6 +38,9 @@ class SubSpace:
       default: per-dimension physical value a failed controller falls back to (§5.2.3).
       n_choices: for discrete sub-spaces, the number of evenly spaced values between ``low``
         and ``high`` inclusive (e.g. 24 for the hours 0..23); ``0`` for continuous ones.
+      units: the physical unit of the values (``"°C"``, ``"ppm"``, ``"h"``), for display only:
+        it takes no part in equality or hashing, so a checkpoint written before units existed
+        matches its environment.
     """
 
     name: str
@@ -47,6 +50,7 @@ class SubSpace:
     high: tuple[float, ...]
     default: tuple[float, ...]
     n_choices: int = 0
+    units: str = dataclasses.field(default="", compare=False)
 
     def __post_init__(self):
         if self.kind not in ("continuous", "discrete"):
@@ -85,7 +89,9 @@ class SubSpace:
             )
 
     @classmethod
-    def continuous(cls, name: str, dim: int, low: float, high: float, default: float) -> SubSpace:
+    def continuous(
+        cls, name: str, dim: int, low: float, high: float, default: float, units: str = ""
+    ) -> SubSpace:
         """A continuous sub-space with the same bounds and default on every dimension."""
         return cls(
             name,
@@ -94,11 +100,19 @@ class SubSpace:
             (float(low),) * dim,
             (float(high),) * dim,
             (float(default),) * dim,
+            units=units,
         )
 
     @classmethod
     def discrete(
-        cls, name: str, dim: int, low: float, high: float, default: float, n_choices: int
+        cls,
+        name: str,
+        dim: int,
+        low: float,
+        high: float,
+        default: float,
+        n_choices: int,
+        units: str = "",
     ) -> SubSpace:
         """A discrete sub-space: ``n_choices`` evenly spaced values in [low, high] per dim."""
         return cls(
@@ -109,6 +123,7 @@ class SubSpace:
             (float(high),) * dim,
             (float(default),) * dim,
             int(n_choices),
+            units=units,
         )
 
 
@@ -319,16 +334,38 @@ class CompositeSpace:
         return cls(tuple(subs))
 
     def describe(self) -> str:
-        """One line per sub-space: name, kind, dim, range, default."""
-        lines = []
+        """A table, one row per sub-space: name, kind, dims, range, default and units (a
+        per-dimension range or default is shown in full when its values differ)."""
+        rows = [("name", "kind", "dims", "range", "default", "units")]
         for s in self.subspaces:
-            rng = f"[{min(s.low):g}, {max(s.high):g}]"
             kind = s.kind if s.kind == "continuous" else f"discrete({s.n_choices})"
-            lines.append(
-                f"{s.name:>14s}: {kind:<13s} dim={s.dim:<3d} range={rng:<14s} "
-                f"default={s.default[0]:g}"
+            rows.append(
+                (
+                    s.name,
+                    kind,
+                    str(s.dim),
+                    _describe_range(s.low, s.high),
+                    _describe_values(s.default),
+                    s.units or "-",
+                )
             )
-        return "\n".join(lines)
+        widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
+        return "\n".join(
+            "  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip() for r in rows
+        )
+
+
+def _describe_values(values: tuple[float, ...]) -> str:
+    """``19`` when every dimension has the same value, else ``6, 18``."""
+    if len(set(values)) == 1:
+        return f"{values[0]:g}"
+    return ", ".join(f"{v:g}" for v in values)
+
+
+def _describe_range(low: tuple[float, ...], high: tuple[float, ...]) -> str:
+    if len(set(low)) == 1 and len(set(high)) == 1:
+        return f"[{low[0]:g}, {high[0]:g}]"
+    return " ".join(f"[{lo:g}, {hi:g}]" for lo, hi in zip(low, high, strict=True))
 
 
 def agents_to_env_action(space: CompositeSpace, agent_action: jax.Array, agent_index) -> jax.Array:

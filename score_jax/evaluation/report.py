@@ -16,23 +16,28 @@ from score_jax.run.checkpoint import dump_json
 from score_jax.run.episodes import evaluate, reference_policies
 
 
-def final_evaluation(run, n_episodes: int, log=print) -> dict:
+def final_evaluation(
+    run, n_episodes: int, log=print, learned: dict | None = None, path: str | None = None
+) -> dict:
     """Returns of the trained policies (the last, and the best-evaluated ones when the run kept
-    them) and of each reference policy; printed as a table and written to ``evaluation.json``.
+    them) and of each reference policy; printed as a table and written to ``evaluation.json`` in
+    the run directory.
 
     Every seed's policy is evaluated on ``n_episodes`` episodes (one vmapped call); a learned row
     holds the mean, std, min and max over all of them, the per-seed means, and their IQM, mean
     and median with 95% stratified-bootstrap intervals (``evaluation.stats``). The references
-    are evaluated once, on the first seed's episodes.
+    are evaluated once, on the first seed's episodes. ``learned``: ``{label: seed-stacked agent
+    state}`` to evaluate instead of the last and best policies; ``path``: where the JSON goes.
     """
     keys = run.eval_keys(20_000)
-    learned = {run.config.algo: run.state.agent}
-    if has_best(run.run_dir):
-        best = with_best_policy(run, log=lambda *a: None).state.agent
-        _, meta = restore_best(run.run_dir, run.state.agent)
-        steps = [s for s in meta["best_steps"] if s is not None]
-        label = f"step {steps[0]}" if run.num_seeds == 1 and steps else "per seed"
-        learned[f"{run.config.algo} (best, {label})"] = best
+    if learned is None:
+        learned = {run.config.algo: run.state.agent}
+        if has_best(run.run_dir):
+            best = with_best_policy(run, log=lambda *a: None).state.agent
+            _, meta = restore_best(run.run_dir, run.state.agent)
+            steps = [s for s in meta["best_steps"] if s is not None]
+            label = f"step {steps[0]}" if run.num_seeds == 1 and steps else "per seed"
+            learned[f"{run.config.algo} (best, {label})"] = best
     rows = {}
     for name, agent in learned.items():  # one compiled evaluator, the parameters an argument
         r = np.asarray(run.evaluate(agent, n_episodes, key=keys).returns).reshape(run.num_seeds, -1)
@@ -49,7 +54,7 @@ def final_evaluation(run, n_episodes: int, log=print) -> dict:
         rows[name] = _stats(np.asarray(jax.jit(episodes)(key).returns))
     log(_table(rows, n_episodes, run.num_seeds))
     dump_json(
-        os.path.join(run.run_dir, "evaluation.json"),
+        path or os.path.join(run.run_dir, "evaluation.json"),
         {"episodes": n_episodes, "seeds": list(run.seeds), "returns": rows},
     )
     return rows
@@ -83,9 +88,14 @@ def _stats(r: np.ndarray) -> dict:
     }
 
 
-def render_policy(run, steps: int, out_dir: str, log=print) -> None:
-    """Render a deterministic episode of the trained policy (Spider) to PNG frames and a GIF."""
-    from envs.spider.render import render_rollout  # deferred: imports MuJoCo's renderer
+def render_policy(
+    run, steps: int, out_dir: str, log=print, png: bool = True, mp4: bool = False
+) -> dict:
+    """Render a deterministic episode of the trained policy (Spider) to PNG frames (``png``), a
+    GIF and, with ``mp4``, an MP4 (GIF only, with a note, when imageio-ffmpeg is missing).
+    Returns the written paths by format."""
+    # deferred: imports MuJoCo's renderer
+    from envs.spider.render import mp4_unavailable_reason, render_rollout
 
     if run.batched:  # the first seed's policy
         run = run.for_seed(0)
@@ -107,8 +117,10 @@ def render_policy(run, steps: int, out_dir: str, log=print) -> None:
     qpos, done = np.asarray(qpos), np.asarray(done)
     end = int(np.argmax(done)) + 1 if done.any() else steps
     qpos = np.concatenate([np.asarray(state.sim.data.qpos), qpos[:end]])
-    files = render_rollout(env.mj_model, qpos, out_dir, fps=1.0 / env.dt)
-    log(
-        f"rendered {len(qpos)} frames to {out_dir} "
-        f"({', '.join(str(p) for p in files.get('gif', []))})"
-    )
+    if mp4 and (reason := mp4_unavailable_reason()) is not None:
+        log(f"no MP4 ({reason}); writing the GIF only")
+        mp4 = False
+    files = render_rollout(env.mj_model, qpos, out_dir, fps=1.0 / env.dt, png=png, mp4=mp4)
+    videos = [str(p) for p in files.get("gif", []) + files.get("mp4", [])]
+    log(f"rendered {len(qpos)} frames to {out_dir} ({', '.join(videos)})")
+    return files

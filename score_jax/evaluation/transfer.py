@@ -48,6 +48,8 @@ class TransferArgs:
     """Evaluation episodes for the Initial and Converge returns."""
     quiet: bool = False
     """No progress bar."""
+    compile_cache: bool = True
+    """JAX's persistent compilation cache (see score-train --help)."""
 
 
 def _mean_std(x) -> dict:

@@ -20,6 +20,7 @@ from score_jax.run.checkpoint import Checkpointer, check_space_matches
 from score_jax.run.config import RunSpec, TrainConfig, TransferSpec, from_dict, resolve, to_dict
 from score_jax.run.episodes import EvalResult, make_evaluator
 from score_jax.run.external import ExternalTrainer
+from score_jax.run.provenance import provenance
 from score_jax.run.sharding import make_data_mesh
 from score_jax.run.trainer import SeedTrainer, Trainer
 
@@ -115,6 +116,7 @@ class Run:
             "config": to_dict(self.config),
             "resolved": self.spec.to_dict(),
             "transfer": None if self.transfer is None else dataclasses.asdict(self.transfer),
+            "provenance": provenance(),
         }
 
 

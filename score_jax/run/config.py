@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import os
+from typing import Literal
 
 import envs
 from score_jax import registry
@@ -104,6 +105,22 @@ class TrainConfig:
     """No progress bar."""
     data_parallel: bool = True
     """Shard environments and batches over all devices when there are several."""
+    track: tuple[Literal["csv", "tensorboard", "wandb"], ...] = ("csv",)
+    """Metric writers, several allowed; csv (<run-dir>/metrics.csv) is always on. tensorboard:
+    event files in <run-dir>/tensorboard; wandb: a Weights & Biases run in <run-dir>/wandb
+    (both from ``pip install -e .[tracking]``)."""
+    wandb_project: str = "score-jax"
+    """W&B project of ``--track wandb``."""
+    wandb_mode: Literal["offline", "online"] | None = None
+    """W&B mode; None = $WANDB_MODE, else offline (no network or login needed; ``wandb sync``
+    uploads the run later)."""
+    compile_cache: bool = True
+    """JAX's persistent compilation cache (a per-user directory, ~/.cache/score-jax/xla, or
+    $SCORE_JAX_CACHE/xla; an already set $JAX_COMPILATION_CACHE_DIR wins), so a second start
+    of the same configuration skips most compilation."""
+    describe: bool = False
+    """Print the environment's sub-spaces (name, kind, dims, range, default, units) and presets,
+    then exit."""
     off_policy: OffPolicyConfig = OffPolicyConfig()
     """Rollout, replay and update schedule."""
     score: ScoreConfig = ScoreConfig()

@@ -25,7 +25,9 @@ from score_jax.run.build import Run, build, saved_transfer, seed_keys
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
 from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_dict, to_dict
 from score_jax.run.external import RESUME_ERROR, fit_external
+from score_jax.run.provenance import provenance
 from score_jax.run.recorder import NonFiniteError, RunRecorder
+from score_jax.run.summary import announce, resolved_config, tracking_kinds
 from score_jax.run.trainer import TrainState
 
 __all__ = ["NonFiniteError", "Run", "train"]
@@ -82,6 +84,7 @@ def train(
         cfg = dataclasses.replace(saved, resume=cfg.resume, run_dir=cfg.resume, quiet=cfg.quiet)
         transfer = saved_transfer(meta)
     run_dir = default_run_dir(cfg)
+    announce(cfg, run_dir, log)  # the header, before any heavy set-up
     os.makedirs(run_dir, exist_ok=True)
 
     restoring = bool(cfg.resume) or initial_agent is not None
@@ -101,8 +104,9 @@ def train(
             os.path.join(run_dir, "config.json"),
             {
                 **to_dict(cfg),
-                "resolved": run.spec.to_dict(),
+                "resolved": resolved_config(cfg, run.spec, run.env, run.agent_index),
                 "seeds": list(run.seeds),
+                "provenance": provenance(),
                 "transfer": run.meta()["transfer"],
             },
         )
@@ -141,6 +145,10 @@ def _recorder(
         resume_from,
         log,
         on_row,
+        track=tracking_kinds(run.config),
+        wandb_project=run.config.wandb_project,
+        wandb_mode=run.config.wandb_mode,
+        wandb_config={**to_dict(run.config), "resolved": run.spec.to_dict()},
     )
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from score_jax.run.best_policy import BestPolicy
-from score_jax.run.writers import CsvWriter, truncate_csv
+from score_jax.run.writers import make_writers, truncate_csv
 
 METRICS_CSV = "metrics.csv"
 
@@ -66,6 +66,9 @@ class RunRecorder:
     ``resume_from``: on resume, the decision count of the restored checkpoint (rows after it
     are produced again, so they are dropped); None for a new run (the file is started anew).
     ``meta``: the run's checkpoint metadata, saved with the best policies.
+    ``track``: metric writers besides the CSV file (``tensorboard``, ``wandb``; see
+    ``run.writers.make_writers``); ``wandb_project``, ``wandb_mode``, ``wandb_config``: the W&B
+    run's project, mode and config.
     """
 
     def __init__(
@@ -80,6 +83,10 @@ class RunRecorder:
         resume_from: int | None = None,
         log=print,
         on_row: Callable | None = None,
+        track: tuple[str, ...] = ("csv",),
+        wandb_project: str = "score-jax",
+        wandb_mode: str | None = None,
+        wandb_config: dict | None = None,
     ):
         path = os.path.join(run_dir, METRICS_CSV)
         if resume_from is None:
@@ -88,7 +95,16 @@ class RunRecorder:
         else:
             truncate_csv(path, resume_from)
         self.columns, self.seeds = list(columns), tuple(seeds)
-        self.csv = CsvWriter(path, self.columns)
+        self.writer = make_writers(
+            track,
+            run_dir,
+            csv_name=METRICS_CSV,
+            csv_columns=self.columns,
+            project=wandb_project,
+            config=wandb_config,
+            wandb_mode=wandb_mode,
+            name=os.path.basename(os.path.abspath(run_dir)),
+        )
         self.progress = Progress(total, resume_from or 0, quiet)
         self.best = BestPolicy(run_dir, resume_from is None, len(self.seeds)) if keep_best else None
         self.meta, self.log, self.on_row = meta, log, on_row
@@ -118,7 +134,7 @@ class RunRecorder:
             full_rows.append(full)
             if not live[k]:
                 continue
-            self.csv.write(int(env_steps), full, seed=self.seeds[k])
+            self.writer.write(int(env_steps), full, seed=self.seeds[k])
             if not math.isnan(full.get("episode_return", math.nan)):
                 self.recent[k] = full["episode_return"]
             if self.on_row is not None:
@@ -162,6 +178,6 @@ class RunRecorder:
 
     def close(self) -> None:
         self.progress.close()
-        self.csv.close()
+        self.writer.close()
         if self.best is not None:
             self.best.close()

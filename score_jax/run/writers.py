@@ -364,6 +364,29 @@ class MultiWriter(_Writer):
             raise errors[0]
 
 
+# the module each kind needs, beyond the standard library
+_REQUIRES = {"tensorboard": "tensorboardX", "wandb": "wandb"}
+
+
+def check_kinds(kinds: Sequence[str], installed: bool = False) -> None:
+    """ValueError for an unknown kind and, with ``installed``, for a kind whose package is not
+    installed (the message says how to install it): a run checks this before it starts, not
+    after minutes of set-up."""
+    unknown = [k for k in kinds if k not in KNOWN_WRITERS]
+    if unknown:
+        raise ValueError(f"unknown writer kind(s) {unknown}; known: {', '.join(KNOWN_WRITERS)}")
+    if installed:
+        import importlib.util
+
+        for kind in kinds:
+            module = _REQUIRES.get(kind)
+            if module is not None and importlib.util.find_spec(module) is None:
+                raise ValueError(
+                    f"--track {kind} needs the {module} package, which is not installed: "
+                    f"{_INSTALL_HINT}"
+                )
+
+
 def make_writers(
     kinds: Sequence[str],
     run_dir: str,
@@ -373,20 +396,20 @@ def make_writers(
     project: str = "score-jax",
     config: Mapping[str, Any] | None = None,
     wandb_mode: str | None = None,
+    name: str | None = None,
 ) -> MultiWriter:
     """A MultiWriter of the named kinds (``csv``, ``tensorboard``, ``wandb``) for ``run_dir``;
     the CSV writer (``run_dir/csv_name``) is always included. TensorBoard writes to
-    ``run_dir/tensorboard``, W&B to ``run_dir/wandb``. ValueError for an unknown kind."""
-    unknown = [k for k in kinds if k not in KNOWN_WRITERS]
-    if unknown:
-        raise ValueError(f"unknown writer kind(s) {unknown}; known: {', '.join(KNOWN_WRITERS)}")
+    ``run_dir/tensorboard``, W&B to ``run_dir/wandb`` (a run called ``name``). ValueError for an
+    unknown kind."""
+    check_kinds(kinds)
     wanted = {"csv", *kinds}
     writers: list[MetricWriter] = [CsvWriter(os.path.join(run_dir, csv_name), csv_columns)]
     try:
         if "tensorboard" in wanted:
             writers.append(TensorBoardWriter(os.path.join(run_dir, "tensorboard")))
         if "wandb" in wanted:
-            writers.append(WandbWriter(project, run_dir, config=config, mode=wandb_mode))
+            writers.append(WandbWriter(project, run_dir, config=config, mode=wandb_mode, name=name))
     except Exception:
         MultiWriter(writers).close()
         raise

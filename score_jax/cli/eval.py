@@ -1,0 +1,69 @@
+"""``score-eval``: evaluate a saved run's policy against the reference policies and watch it.
+
+    score-eval --run-dir runs/greenhouse-score-s0                 # table + season plot
+    score-eval --run-dir runs/spider-score-s0 --render            # table + GIF / MP4
+    score-eval --run-dir DIR --policy last --episodes 20
+
+Writes ``evaluation.json`` and ``evaluation.md`` (and ``season.png`` on the greenhouse,
+``render/rollout.{gif,mp4}`` on the Spider with ``--render``) into ``<run-dir>/eval-<policy>``
+(``score_jax.evaluation.saved_run``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from typing import Literal
+
+import tyro
+
+from score_jax.evaluation.saved_run import evaluate_saved_run
+from score_jax.run.checkpoint import CheckpointError
+from score_jax.run.compile_cache import enable_compile_cache
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalArgs:
+    """Evaluate a saved run's policy against the reference policies; plot or render it."""
+
+    run_dir: str
+    """A run directory written by score-train."""
+    policy: Literal["best", "last"] = "best"
+    """The run's best-evaluated policy (when it kept one; else the last) or its last one."""
+    episodes: int | None = None
+    """Evaluation episodes per policy; None = the run's --eval-episodes."""
+    render: bool = False
+    """Spider: render one deterministic episode to render/rollout.gif and rollout.mp4 (MP4
+    needs imageio-ffmpeg: pip install -e .[render]). The greenhouse's season plot is always
+    written."""
+    render_steps: int | None = None
+    """Steps of the rendered episode; None = the run's --render-steps."""
+    out: str | None = None
+    """Where the files go; None = <run-dir>/eval-<policy>."""
+    compile_cache: bool = True
+    """JAX's persistent compilation cache (see score-train --help)."""
+
+
+def main(args: EvalArgs) -> int:
+    enable_compile_cache(enabled=args.compile_cache)
+    try:
+        evaluate_saved_run(
+            args.run_dir,
+            policy=args.policy,
+            episodes=args.episodes,
+            render=args.render,
+            render_steps=args.render_steps,
+            out_dir=args.out,
+        )
+    except (CheckpointError, ValueError, KeyError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cli() -> int:
+    return main(tyro.cli(EvalArgs))
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
