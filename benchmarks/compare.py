@@ -7,24 +7,27 @@ Figs. 6/8).
     python benchmarks/compare.py --budget paper  # 1 M env steps per run (the figures' scale)
     python benchmarks/compare.py --base.single.hidden 64 64  # any train.py setting for every run
 
-Every row (algorithm or SCORE ablation) trains ``--seeds`` runs with ``--eval-every`` set, then
-evaluates the final deterministic policy (``--eval-episodes`` episodes per seed). Per
-environment it writes to ``--out``:
-- ``compare_<env>.json``: per-seed returns, mean ± std, learning curves;
-- ``compare_<env>.md``: the table (mean ± std over seeds), Tables 2/3 style;
-- ``compare_<env>.png``: learning curves on the full space (Figs. 6a/8a), mean ± std over seeds;
+Every row (algorithm or SCORE ablation) trains ``--seeds`` seeds with ``--eval-every`` set, in
+ONE run (``--num-seeds``: one compiled program for all seeds; brax's algorithms train their
+seeds one after another), then evaluates every seed's final deterministic policy
+(``--eval-episodes`` episodes each). Statistics over seeds follow Agarwal et al. 2021
+(``score_jax.evaluation.stats``): IQM, mean and median with 95% stratified-bootstrap intervals,
+the probability that SCORE improves on each row, and performance profiles. Per environment it
+writes to ``--out``:
+- ``compare_<env>.json``: per-seed returns, the statistics, learning curves;
+- ``compare_<env>.md``: the table (IQM [95% CI] over seeds), Tables 2/3 style;
+- ``compare_<env>.png``: learning curves on the full space (Figs. 6a/8a), mean and 95% band;
+- ``compare_<env>_profiles.png``: performance profiles of the final returns;
 - with ``--transfer``: each row also trains on a subset (``--transfer-subspaces``, default the
   paper's: greenhouse without temperature and irrigation, Spider without two legs), then
   fine-tunes on the full space with transfer.py (columns Initial / Converge); the fixed-width
   baselines get one row per transfer variant (PPO, PPO-mask, PPO-penalty, Table 3);
   ``compare_<env>_transfer.png`` holds the fine-tuning curves (Figs. 6b/8b).
 
-Runs go to ``--work-dir/<env>/<row>/s<seed>``; a run whose ``result.json`` exists is reused, so an
-interrupted comparison continues where it stopped. Budget: ``small`` = 20k env steps per run
-on the greenhouse and the Spider, 2k on the probe. Measured per 20k-step greenhouse run on 2
-shared CPU cores (load ~5): sac / ppo / hppo ~1 min, SCORE ~10 min with its ASRL stage; the
-default greenhouse comparison (12 rows x 3 seeds) takes a few hours, ``--ablations none
---seeds 2`` one to two.
+Runs go to ``--work-dir/<env>/<row>/s<first seed>[-<last seed>]``; a run whose ``result.json``
+exists is reused, so an interrupted comparison continues where it stopped. Budget: ``small`` =
+20k decisions per run on the greenhouse and the Spider, 2k on the probe; the wall time of a
+comparison is printed per row.
 """
 
 from __future__ import annotations
@@ -47,6 +50,14 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from score_jax import registry  # noqa: E402
+from score_jax.evaluation.curves import mean_and_interval  # noqa: E402
+from score_jax.evaluation.stats import (  # noqa: E402
+    aggregate,
+    format_interval,
+    performance_profile,
+    plot_performance_profiles,
+    probability_of_improvement,
+)
 from score_jax.evaluation.transfer import TransferArgs, run_transfer  # noqa: E402
 from score_jax.run.build import build  # noqa: E402
 from score_jax.run.config import TrainConfig, to_dict  # noqa: E402
@@ -92,8 +103,8 @@ class CompareArgs:
     ablations: Literal["none", "single", "full"] = "single"
     """SCORE ablation rows (Table 2): single = aggregation mean / sum, no hypernet, no ASRL;
     full = all 11 combinations."""
-    seeds: int = 3
-    """Seeds per row (0 .. seeds-1)."""
+    seeds: int = 5
+    """Seeds per row (0 .. seeds-1), trained in one run per row (``--num-seeds``)."""
     budget: Literal["small", "paper"] = "small"
     """Env steps per run: small (20k greenhouse / Spider) or paper (1 M)."""
     total_steps: int = 0
@@ -144,19 +155,37 @@ def rows(args: CompareArgs) -> list[tuple[str, str, dict]]:
     return out
 
 
-def _mean_std(values) -> dict:
+def _summary(values, seed: int = 0) -> dict:
+    """Per-seed values, mean and std, and IQM / mean / median with 95% stratified-bootstrap
+    intervals over the seeds (a degenerate interval for one seed)."""
     v = np.asarray(values, float)
-    return {"per_seed": v.tolist(), "mean": float(v.mean()), "std": float(v.std())}
+    agg = aggregate({"row": v}, reps=10_000, seed=seed)["row"]
+    interval = lambda iv: {"value": iv.value, "lo": iv.lo, "hi": iv.hi}
+    return {
+        "per_seed": v.tolist(),
+        "mean": float(v.mean()),
+        "std": float(v.std()),
+        **{m: interval(agg.metric(m)) for m in ("iqm", "median")},
+        "mean_ci": interval(agg.metric("mean")),
+    }
 
 
-def _curve(run_dir: str) -> dict:
+def _curves(run_dir: str) -> list[dict]:
+    """Each seed's deterministic evaluations ``{"seed", "steps", "returns"}`` from metrics.csv."""
     with open(os.path.join(run_dir, "metrics.csv")) as f:
-        points = [
-            (int(r["env_steps"]), float(r["eval_return"]))
-            for r in csv.DictReader(f)
-            if r["eval_return"] not in ("", "nan")
-        ]
-    return {"steps": [p[0] for p in points], "returns": [p[1] for p in points]}
+        rows = [r for r in csv.DictReader(f) if r["eval_return"] not in ("", "nan")]
+    seeds = sorted({int(float(r.get("seed", 0))) for r in rows})
+    out = []
+    for seed in seeds:
+        mine = [r for r in rows if int(float(r.get("seed", 0))) == seed]
+        out.append(
+            {
+                "seed": seed,
+                "steps": [int(r["env_steps"]) for r in mine],
+                "returns": [float(r["eval_return"]) for r in mine],
+            }
+        )
+    return out
 
 
 def _fresh(run_dir: str) -> None:
@@ -177,20 +206,22 @@ def _key(cfg: TrainConfig, **extra) -> dict:
     return json.loads(json.dumps({"config": to_dict(cfg), **extra}, default=str))
 
 
-def final_return(run, n_episodes: int) -> float:
-    """Mean return of the run's final (last) deterministic policy over ``n_episodes`` episodes."""
-    return float(np.mean(run.evaluate(run.state.agent, n_episodes).returns))
+def final_returns(run, n_episodes: int) -> list[float]:
+    """Each seed's mean return of its final (last) deterministic policy over ``n_episodes``."""
+    returns = np.asarray(run.evaluate(run.state.agent, n_episodes).returns)
+    return returns.reshape(run.num_seeds, -1).mean(axis=1).tolist()
 
 
 def run_full(cfg: TrainConfig, n_episodes: int) -> dict:
-    """Train one run (or reuse its result.json); its final deterministic return and curve."""
+    """Train one run of every seed (or reuse its result.json); each seed's final deterministic
+    return and evaluation curve."""
     path, key = os.path.join(cfg.run_dir, "result.json"), _key(cfg, episodes=n_episodes)
     cached = _cached(path, key)
     if cached is not None:
         return cached
     _fresh(cfg.run_dir)
     run = train(cfg, log=lambda *a: None)
-    result = {"key": key, "return": final_return(run, n_episodes), "curve": _curve(cfg.run_dir)}
+    result = {"key": key, "returns": final_returns(run, n_episodes), "curves": _curves(cfg.run_dir)}
     json.dump(result, open(path, "w"))
     return result
 
@@ -216,9 +247,9 @@ def run_transfer_pair(cfg: TrainConfig, target: str, steps: int, n_episodes: int
     )
     result = {
         "key": key,
-        "initial": res["initial"]["mean"],
-        "converge": res["converge"]["mean"],
-        "curve": _curve(target),
+        "initial": res["initial"]["per_seed"],
+        "converge": res["converge"]["per_seed"],
+        "curves": _curves(target),
     }
     json.dump(result, open(path, "w"))
     return result
@@ -244,60 +275,51 @@ def can_transfer(cfg: TrainConfig) -> bool:
     return False
 
 
+def _seeds_dir(seeds: int) -> str:
+    return "s0" if seeds == 1 else f"s0-{seeds - 1}"
+
+
 def compare_env(args: CompareArgs, env: str) -> dict:
     steps = args.total_steps or BUDGETS[args.budget][env]
     subset = args.transfer_subspaces or SUBSETS[env]
     jobs = []  # (label, kind, cfg, transfer target dir) with kind "full" or "transfer"
+    seeds_dir = _seeds_dir(args.seeds)
     for label, algo, overrides in rows(args):
-        for seed in range(args.seeds):
-            cfg = dataclasses.replace(
-                args.base,
-                env=env,
-                algo=algo,
-                seed=seed,
-                total_steps=steps,
-                eval_every=max(1, steps // args.eval_points),
-                eval_episodes=args.eval_episodes,
-                robustness_seeds=0,
-                quiet=True,
-                **overrides,
+        cfg = dataclasses.replace(
+            args.base,
+            env=env,
+            algo=algo,
+            seed=0,
+            num_seeds=args.seeds,
+            total_steps=steps,
+            eval_every=max(1, steps // args.eval_points),
+            eval_episodes=args.eval_episodes,
+            robustness_seeds=0,
+            quiet=True,
+            **overrides,
+        )
+        slug = label.replace("+", "_").lower()
+        run_dir = os.path.join(args.work_dir, env, slug, seeds_dir)
+        jobs.append((label, "full", dataclasses.replace(cfg, run_dir=run_dir), None))
+        if not args.transfer or not can_transfer(cfg):
+            continue
+        for variant in args.variants if algo in FIXED_WIDTH else ("plain",):
+            name = label if variant == "plain" else f"{label}-{variant}"
+            vcfg = dataclasses.replace(
+                cfg,
+                subspaces=subset,
+                single=dataclasses.replace(cfg.single, transfer_variant=variant),
+                run_dir=os.path.join(args.work_dir, env, f"{slug}-{variant}-subset", seeds_dir),
             )
-            slug = label.replace("+", "_").lower()
-            jobs.append(
-                (
-                    label,
-                    "full",
-                    dataclasses.replace(
-                        cfg, run_dir=os.path.join(args.work_dir, env, slug, f"s{seed}")
-                    ),
-                    None,
-                )
-            )
-            if not args.transfer or not can_transfer(cfg):
-                continue
-            for variant in args.variants if algo in FIXED_WIDTH else ("plain",):
-                name = label if variant == "plain" else f"{label}-{variant}"
-                vcfg = dataclasses.replace(
-                    cfg,
-                    subspaces=subset,
-                    single=dataclasses.replace(cfg.single, transfer_variant=variant),
-                    run_dir=os.path.join(
-                        args.work_dir, env, f"{slug}-{variant}-subset", f"s{seed}"
-                    ),
-                )
-                jobs.append(
-                    (
-                        name,
-                        "transfer",
-                        vcfg,
-                        os.path.join(args.work_dir, env, f"{slug}-{variant}-transfer", f"s{seed}"),
-                    )
-                )
+            target = os.path.join(args.work_dir, env, f"{slug}-{variant}-transfer", seeds_dir)
+            jobs.append((name, "transfer", vcfg, target))
     results, errors, t0 = {}, {}, time.time()
     for i, (label, kind, cfg, target) in enumerate(jobs):
         t = time.time()
         print(
-            f"[{env} {i + 1}/{len(jobs)}] {label} {kind} seed {cfg.seed} ...", end=" ", flush=True
+            f"[{env} {i + 1}/{len(jobs)}] {label} {kind}, {args.seeds} seeds ...",
+            end=" ",
+            flush=True,
         )
         try:
             res = (
@@ -309,9 +331,12 @@ def compare_env(args: CompareArgs, env: str) -> dict:
             errors.setdefault(f"{label} ({kind})", f"{type(e).__name__}: {e}")
             print(f"FAILED ({type(e).__name__}: {str(e)[:200]})", flush=True)
             continue
-        results.setdefault((label, kind), []).append(res)
-        shown = res["return"] if kind == "full" else res["converge"]
-        print(f"{shown:.2f} ({time.time() - t:.0f} s, {time.time() - t0:.0f} s in all)", flush=True)
+        results[(label, kind)] = res
+        shown = np.mean(res["returns"] if kind == "full" else res["converge"])
+        print(
+            f"mean {shown:.2f} ({time.time() - t:.0f} s, {time.time() - t0:.0f} s in all)",
+            flush=True,
+        )
     return summarise(args, env, steps, subset, results, errors)
 
 
@@ -322,16 +347,16 @@ def summarise(
     for (label, kind), res in results.items():
         entry = table.setdefault(label, {})
         if kind == "full":
-            entry["full"] = {
-                **_mean_std([r["return"] for r in res]),
-                "curves": [r["curve"] for r in res],
-            }
+            entry["full"] = {**_summary(res["returns"]), "curves": res["curves"]}
         else:
-            entry["initial"] = _mean_std([r["initial"] for r in res])
-            entry["converge"] = {
-                **_mean_std([r["converge"] for r in res]),
-                "curves": [r["curve"] for r in res],
-            }
+            entry["initial"] = _summary(res["initial"])
+            entry["converge"] = {**_summary(res["converge"]), "curves": res["curves"]}
+    finals = {k: np.asarray(v["full"]["per_seed"]) for k, v in table.items() if "full" in v}
+    if "SCORE" in finals:  # P(SCORE > row): the probability that a SCORE seed beats a row's seed
+        for label, values in finals.items():
+            if label != "SCORE":
+                point, (lo, hi) = probability_of_improvement(finals["SCORE"], values, reps=10_000)
+                table[label]["full"]["p_score_better"] = {"value": point, "lo": lo, "hi": hi}
     out = {
         "env": env,
         "total_steps": steps,
@@ -348,8 +373,14 @@ def summarise(
     plot(
         {k: v["full"]["curves"] for k, v in table.items() if "full" in v},
         base + ".png",
-        f"{env}: full sub-action spaces ({steps} env steps)",
+        f"{env}: full sub-action spaces ({steps} decisions)",
     )
+    if finals:
+        lo = min(float(v.min()) for v in finals.values())
+        hi = max(float(v.max()) for v in finals.values())
+        taus = np.linspace(lo, hi, 50) if hi > lo else np.asarray([lo])
+        profiles = performance_profile({k: v for k, v in finals.items()}, taus, reps=2_000)
+        plot_performance_profiles(profiles, taus, base + "_profiles.png", xlabel="final return")
     if args.transfer:
         plot(
             {k: v["converge"]["curves"] for k, v in table.items() if "converge" in v},
@@ -361,42 +392,63 @@ def summarise(
 
 
 def markdown(out: dict, transfer: bool) -> str:
-    cell = lambda d: f"{d['mean']:.1f} (± {d['std']:.1f})" if d else "—"
+    def cell(d):
+        if not d:
+            return "—"
+        iqm = d["iqm"]
+        return format_interval(iqm["value"], iqm["lo"], iqm["hi"])
+
     head = (
-        f"Final deterministic evaluation return, mean (± std) over {out['seeds']} seeds x "
-        f"{out['eval_episodes']} episodes, {out['total_steps']} env steps per run on "
-        f"`{out['env']}`.\n\n"
+        f"Final deterministic evaluation return: IQM [95% stratified-bootstrap CI] over "
+        f"{out['seeds']} seeds ({out['eval_episodes']} episodes each), {out['total_steps']} "
+        f"decisions per seed on `{out['env']}`; P(SCORE better): the probability that a SCORE "
+        "seed beats one of the row's.\n\n"
     )
-    cols = ["Fully: Converge"] + (["Unseen: Initial", "Unseen: Converge"] if transfer else [])
-    lines = ["| algorithm | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
+    cols = ["Fully: Converge", "P(SCORE better)"]
+    cols += ["Unseen: Initial", "Unseen: Converge"] if transfer else []
+    lines = [
+        "| algorithm | " + " | ".join(cols) + " | per-seed (fully) |",
+        "|---|" + "---:|" * len(cols) + "---|",
+    ]
     for label, v in out["rows"].items():
-        cells = [cell(v.get("full"))] + (
-            [cell(v.get("initial")), cell(v.get("converge"))] if transfer else []
-        )
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        full = v.get("full") or {}
+        p = full.get("p_score_better")
+        cells = [cell(full), "—" if p is None else format_interval(p["value"], p["lo"], p["hi"], 2)]
+        if transfer:
+            cells += [cell(v.get("initial")), cell(v.get("converge"))]
+        seeds = ", ".join(f"{x:.1f}" for x in full.get("per_seed", []))
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {seeds} |")
     errors = "".join(f"\n- {k}: {e}" for k, e in out["errors"].items())
     return head + "\n".join(lines) + ("\n\nFailed:" + errors if errors else "") + "\n"
 
 
 def plot(curves: dict[str, list[dict]], path: str, title: str) -> None:
-    """Mean ± std over seeds of the deterministic evaluation return against env steps."""
+    """Each row's deterministic evaluations against decisions: the mean over seeds with a 95%
+    t-interval (every seed faint)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    for label, per_seed in curves.items():
-        n = min(len(c["returns"]) for c in per_seed) if per_seed else 0
-        if n == 0:
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (label, per_seed) in enumerate(curves.items()):
+        data = {
+            c["seed"]: (np.asarray(c["steps"], float), np.asarray(c["returns"], float))
+            for c in per_seed
+            if c["steps"]
+        }
+        colour = colours[i % len(colours)]
+        for steps, values in data.values():
+            ax.plot(steps, values, color=colour, alpha=0.2, lw=1)
+        summary = mean_and_interval(data)
+        if summary is None:
             continue
-        steps = np.asarray(per_seed[0]["steps"][:n], float)
-        r = np.asarray([c["returns"][:n] for c in per_seed], float)
-        line = ax.plot(steps, r.mean(0), label=label)[0]
-        ax.fill_between(
-            steps, r.mean(0) - r.std(0), r.mean(0) + r.std(0), color=line.get_color(), alpha=0.2
-        )
-    ax.set_xlabel("environment steps")
+        grid, mean, lo, hi = summary
+        ax.plot(grid, mean, color=colour, lw=2, label=label)
+        if lo is not None:
+            ax.fill_between(grid, lo, hi, color=colour, alpha=0.2, lw=0)
+    ax.set_xlabel("decisions (steps of the action-repeated env)")
     ax.set_ylabel("episode return (deterministic evaluation)")
     ax.set_title(title)
     ax.grid(alpha=0.3)

@@ -120,7 +120,7 @@ def test_header_comes_first_one_line_per_item(tracked_run):
 def test_tensorboard_event_file_holds_the_logged_scalars(tracked_run):
     run_dir, _ = tracked_run
     rows = read_csv(os.path.join(run_dir, "metrics.csv"))
-    scalars = _tb_scalars(os.path.join(run_dir, "tensorboard"))
+    scalars = _tb_scalars(os.path.join(run_dir, "tensorboard", "seed_0"))  # one run per seed
     assert len(rows) == 2  # two epochs of 200 decisions
     for name in ("episode_return", "reward_mean", "critic_loss", "updates"):
         logged = scalars[f"train/{name}"]
@@ -142,7 +142,9 @@ def test_wandb_offline_run_holds_the_logged_scalars(tracked_run):
     history = _wandb_history(files[0])
     assert [h["env_steps"] for h in history] == [r["env_steps"] for r in rows]
     np.testing.assert_allclose(
-        [h["train/reward_mean"] for h in history], [r["reward_mean"] for r in rows], rtol=1e-6
+        [h["seed_0/train/reward_mean"] for h in history],
+        [r["reward_mean"] for r in rows],
+        rtol=1e-6,
     )
 
 
