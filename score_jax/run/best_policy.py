@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from typing import Any
 
-from score_jax.run.checkpoint import Checkpointer, checkpoint_dir
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, checkpoint_dir
 
 BEST = "best"
 
@@ -23,7 +24,7 @@ BEST = "best"
 class BestPolicy:
     """The best agent state so far and its evaluation return (``-inf`` before the first)."""
 
-    def __init__(self, run_dir: str, fresh: bool):
+    def __init__(self, run_dir: str, fresh: bool, log=print):
         if fresh and os.path.isdir(
             checkpoint_dir(run_dir, BEST)
         ):  # a new run never inherits a best
@@ -31,8 +32,17 @@ class BestPolicy:
         self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
         self.step, self.eval_return = None, float("-inf")
         if self.ckpt.latest_step() is not None:
-            meta = self.ckpt.read_meta()
-            self.step, self.eval_return = int(meta["step"]), float(meta["eval_return"])
+            try:
+                meta = self.ckpt.read_meta()
+            except CheckpointError as e:  # a damaged best policy never stops the run
+                log(f"warning: {e}; the run keeps a new best policy from here on")
+                self.ckpt.close()
+                shutil.move(
+                    self.ckpt.directory, f"{self.ckpt.directory}.unusable-{time.time():.0f}"
+                )
+                self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
+            else:
+                self.step, self.eval_return = int(meta["step"]), float(meta["eval_return"])
 
     def offer(self, step: int, eval_return: float, agent_state: Any, meta: dict) -> bool:
         """Save ``agent_state`` if ``eval_return`` beats the best so far; True if it did."""

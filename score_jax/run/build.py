@@ -15,7 +15,7 @@ from envs.wrappers import with_action_repeat
 from score_jax import registry
 from score_jax.agents.base import Algorithm, BuildContext
 from score_jax.run.best_policy import has_best, restore_best
-from score_jax.run.checkpoint import Checkpointer, check_space_matches
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, saved_run_config
 from score_jax.run.config import RunSpec, TrainConfig, TransferSpec, from_dict, resolve, to_dict
 from score_jax.run.episodes import EvalResult, make_evaluator
 from score_jax.run.external import ExternalTrainer
@@ -137,21 +137,29 @@ def restore_run(run_dir: str, log=print, policy: str = "last") -> Run:
     """
     if policy not in ("last", "best"):
         raise ValueError(f"policy must be 'last' or 'best', got {policy!r}")
-    ckpt = Checkpointer(run_dir)
-    meta = ckpt.read_meta()
-    cfg = from_dict(TrainConfig, meta["config"])
+    ckpt = Checkpointer(run_dir, create=False)  # reads only: "no run in ..." when absent
+    config, transfer = saved_run_config(run_dir)
+    cfg = from_dict(TrainConfig, config)
     key_build, key_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
-    run = build(cfg, key_build, run_dir, restoring=True, log=log, transfer=saved_transfer(meta))
-    state, meta = ckpt.restore(run.trainer.init(key_train))
-    check_space_matches(meta, cfg.env, run.env.space)
-    ckpt.close()
-    if policy == "best" and has_best(run_dir):
-        agent, best_meta = restore_best(run_dir, state.agent)
-        state = state.replace(agent=agent)
-        log(
-            f"using the best policy of {run_dir} (env step {best_meta['step']}, "
-            f"evaluation {best_meta['eval_return']:.1f})"
+    grown = saved_transfer({"transfer": transfer})
+    run = build(cfg, key_build, run_dir, restoring=True, log=log, transfer=grown)
+    try:  # the newest usable checkpoint (skipped ones: one warning line)
+        state, _ = ckpt.restore_usable(
+            run.trainer.init(key_train), checks_for(config, run.env.space), log=log
         )
+    finally:
+        ckpt.close()
+    if policy == "best" and has_best(run_dir):
+        try:
+            agent, best_meta = restore_best(run_dir, state.agent)
+        except CheckpointError as e:  # a damaged best policy never stops the run
+            log(f"warning: the best policy of {run_dir} is unusable ({e}); using the last one")
+        else:
+            state = state.replace(agent=agent)
+            log(
+                f"using the best policy of {run_dir} (env step {best_meta['step']}, "
+                f"evaluation {best_meta['eval_return']:.1f})"
+            )
     run.state = run.trainer.place(state)
     return run
 
@@ -160,7 +168,11 @@ def with_best_policy(run: Run, log=print) -> Run:
     """``run`` with its best-evaluated agent state in place of the last one (unchanged if none)."""
     if not has_best(run.run_dir):
         return run
-    agent, meta = restore_best(run.run_dir, run.state.agent)
+    try:
+        agent, meta = restore_best(run.run_dir, run.state.agent)
+    except CheckpointError as e:  # a damaged best policy never stops the run
+        log(f"warning: the best policy is unusable ({e}); keeping the last one")
+        return run
     log(
         f"using the best policy (env step {meta['step']}, evaluation {meta['eval_return']:.1f}) "
         "from here on"
