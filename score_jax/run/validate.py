@@ -290,12 +290,6 @@ def _env_problems(cfg: TrainConfig, raw, names, in_process: bool) -> list[str]:
                 f"--single.ppo.batch-size {p.batch_size} x --single.ppo.num-minibatches "
                 f"{p.num_minibatches} must be a multiple of --single.num-envs {n}"
             )
-        per_iteration = p.batch_size * p.num_minibatches * p.unroll_length
-        if total < per_iteration:
-            out.append(
-                f"--total-steps {total} is below one PPO iteration ({per_iteration} env steps = "
-                "batch-size x num-minibatches x unroll-length): it would not learn"
-            )
     elif cfg.algo == "sac" and cfg.single.sac.min_replay_size >= total:
         out.append(
             f"--single.sac.min-replay-size {cfg.single.sac.min_replay_size} must be below the "
