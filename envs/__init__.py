@@ -6,12 +6,16 @@ Environments are imported lazily so that using the greenhouse never imports MuJo
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
+from envs import base
 from envs.base import CompositeEnv, EnvHints, EnvState, missing_members
 from score_jax.core.registry import LazyRegistry
 
-# name -> "module:factory"; the factory takes keyword overrides and returns a CompositeEnv.
+# name -> "module:factory"; the factory takes keyword overrides and returns a CompositeEnv. A
+# factory may declare ``config_class`` (the dataclass its overrides fill) and ``extra_options``
+# (its other keyword options: name -> type annotation), so options given as text are typed.
 _REGISTRY: LazyRegistry[Callable[..., CompositeEnv]] = LazyRegistry(
     "environment",
     {
@@ -45,6 +49,24 @@ def factory(name: str) -> Callable[..., CompositeEnv]:
     return _REGISTRY.get(name)
 
 
+def option_types(name: str) -> dict[str, Any] | None:
+    """The options ``make(name, ...)`` accepts, by dotted name -> type annotation (the fields of
+    its factory's ``config_class`` and its ``extra_options``); None when the factory declares
+    no ``config_class`` (its options are then not typed)."""
+    f = factory(name)
+    config_class = getattr(f, "config_class", None)
+    if config_class is None:
+        return None
+    return {**base.option_types(config_class), **getattr(f, "extra_options", {})}
+
+
+def parse_options(name: str, items: Sequence[str]) -> tuple[dict, list[str]]:
+    """``key=value`` texts (``--env-options``) -> ``(overrides for make(name, ...), problems)``,
+    each value parsed against the option's type (``envs.base.parse_option``); one message per
+    problem (malformed item, unknown or repeated option, value of the wrong type)."""
+    return base.parse_options(items, option_types(name), owner=f"{name} env")
+
+
 def make(name: str, **overrides) -> CompositeEnv:
     """Build the environment called ``name``; ``overrides`` go to its config.
 
@@ -70,6 +92,8 @@ __all__ = [
     "EnvState",
     "factory",
     "make",
+    "option_types",
+    "parse_options",
     "register",
     "registered_names",
 ]

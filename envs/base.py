@@ -12,8 +12,13 @@ Subclass ``CompositeEnv`` to inherit the defaults of its optional members (``hin
 
 from __future__ import annotations
 
+import ast
+import collections.abc
 import dataclasses
-from collections.abc import Callable, Mapping
+import math
+import types
+import typing
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import jax
@@ -151,3 +156,155 @@ def build_config(config_cls, overrides: dict, base=None):
         inner = flat.get(head, getattr(base, head) if base is not None else fields[head].default)
         flat[head] = build_config(type(inner), sub, base=inner)
     return dataclasses.replace(base, **flat) if base is not None else config_cls(**flat)
+
+
+# --- options given as text (the command line's ``--env-options key=value``) -----------------
+
+_TRUE = ("true", "1", "yes", "on")
+_FALSE = ("false", "0", "no", "off")
+
+
+def option_types(config_cls, prefix: str = "") -> dict[str, Any]:
+    """Every option of a (nested) config dataclass by its dotted name, with its type annotation
+    resolved (``{"physics.timestep": float, "reward": Literal[...], ...}``)."""
+    hints = typing.get_type_hints(config_cls)
+    out = {}
+    for f in dataclasses.fields(config_cls):
+        if dataclasses.is_dataclass(f.default):
+            out.update(option_types(type(f.default), f"{prefix}{f.name}."))
+        else:
+            out[prefix + f.name] = hints[f.name]
+    return out
+
+
+def describe_type(tp) -> str:
+    """``tp`` in words, for error messages (``"true or false"``, ``"one of 'a', 'b'"``)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join("none" if a is type(None) else describe_type(a) for a in args)
+    if origin is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin in (tuple, list, collections.abc.Sequence):
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"comma-separated {describe_type(args[0])} values"
+        if args:
+            return f"{len(args)} comma-separated values ({', '.join(map(describe_type, args))})"
+        return "comma-separated values"
+    return {
+        bool: "true or false",
+        int: "an integer",
+        float: "a finite number",
+        str: "a string",
+    }.get(tp, getattr(tp, "__name__", str(tp)))
+
+
+def _unquote(text: str) -> str:
+    text = text.strip()
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
+        return text[1:-1]
+    return text
+
+
+def parse_option(text: str, tp) -> Any:
+    """The value of ``text`` for an option annotated ``tp``: bool (true/false, 1/0, yes/no, on/off,
+    any case), int, float (finite), str (quotes optional), ``Literal`` choices, tuples
+    (comma-separated, brackets optional) and unions such as ``X | None`` (``none``). Raises a
+    ValueError saying what was expected."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    bad = ValueError(f"expected {describe_type(tp)}, got {text!r}")
+    if origin in (typing.Union, types.UnionType):
+        if type(None) in args and _unquote(text).lower() in ("none", "null"):
+            return None
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return parse_option(text, a)
+            except ValueError:
+                pass
+        raise bad
+    if origin is typing.Literal:
+        for choice in args:
+            try:
+                value = parse_option(text, type(choice))
+            except ValueError:
+                continue
+            if value == choice:
+                return choice
+        raise bad
+    if origin in (tuple, list, collections.abc.Sequence):
+        inner = text.strip()
+        if inner[:1] + inner[-1:] in ("()", "[]"):
+            inner = inner[1:-1]
+        items = [x for x in (s.strip() for s in inner.split(",")) if x] if inner.strip() else []
+        if len(args) == 2 and args[1] is Ellipsis:
+            kinds = [args[0]] * len(items)
+        elif args:
+            if len(items) != len(args):
+                raise bad
+            kinds = list(args)
+        else:
+            kinds = [str] * len(items)
+        return tuple(parse_option(x, k) for x, k in zip(items, kinds, strict=True))
+    word = _unquote(text)
+    if tp is bool:
+        if word.lower() in _TRUE:
+            return True
+        if word.lower() in _FALSE:
+            return False
+        raise bad
+    if tp is int:
+        try:
+            return int(word)
+        except ValueError:
+            raise bad from None
+    if tp is float:
+        try:
+            value = float(word)
+        except ValueError:
+            raise bad from None
+        if not math.isfinite(value):
+            raise bad
+        return value
+    if tp is str:
+        return word
+    try:  # any other annotation: a Python literal, else the text itself
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def parse_options(
+    items: Sequence[str], types_: Mapping[str, Any] | None, owner: str = "environment"
+) -> tuple[dict, list[str]]:
+    """``key=value`` texts -> ``(overrides, problems)``: each value parsed against
+    ``types_[key]`` (``option_types``); ``types_`` None = untyped (Python literals when possible,
+    else the text). Every problem (malformed item, unknown or repeated key, bad value) is one
+    message; the overrides hold the items that parsed."""
+    out, problems, seen = {}, [], set()
+    for item in items:
+        key, eq, text = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            problems.append(f"{owner} option {item!r} must look like key=value")
+            continue
+        if key in seen:
+            problems.append(f"{owner} option {key!r} is given twice")
+            continue
+        seen.add(key)
+        if types_ is None:
+            try:
+                out[key] = ast.literal_eval(text)
+            except (ValueError, SyntaxError):
+                out[key] = text
+            continue
+        if key not in types_:
+            problems.append(
+                f"unknown {owner} option {key!r}; accepted: {', '.join(sorted(types_))}"
+            )
+            continue
+        try:
+            out[key] = parse_option(text, types_[key])
+        except ValueError as e:
+            problems.append(f"{owner} option {key}: {e}")
+    return out, problems

@@ -27,6 +27,10 @@ from score_jax.core.spaces import CompositeSpace, SubSpace
 class ProbeConfig:
     episode_length: int = 10
 
+    def __post_init__(self):
+        if self.episode_length < 1:
+            raise ValueError(f"episode_length must be >= 1, got {self.episode_length}")
+
 
 PROBE_SPACE = CompositeSpace(
     (
@@ -96,3 +100,6 @@ class ProbeEnv(CompositeEnv):
 
 def make_probe(**overrides) -> ProbeEnv:
     return ProbeEnv(build_config(ProbeConfig, overrides))
+
+
+make_probe.config_class = ProbeConfig  # typed --env-options (envs.option_types)

@@ -31,9 +31,9 @@ from score_jax.agents.brax.hppo import hppo_head_mask, make_hppo_networks
 from score_jax.evaluation.report import final_evaluation
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import restore_run
-from score_jax.run.checkpoint import CheckpointError
 from score_jax.run.config import TrainConfig
 from score_jax.run.driver import train
+from score_jax.run.validate import UsageError
 
 THRESHOLD = 9.0  # return per 10-step episode: 0.9 per step
 STEPS = 20_480  # 16 PPO iterations of 1280 env steps
@@ -92,7 +92,7 @@ def test_baseline_learns_the_probe_and_its_checkpoint_is_evaluated_and_swept(ful
 
 
 def test_resume_of_a_brax_run_is_refused_with_a_reason(full_runs):
-    with pytest.raises(CheckpointError, match="cannot be continued exactly"):
+    with pytest.raises(UsageError, match="cannot be continued exactly"):
         train(TrainConfig(resume=full_runs["ppo"].run_dir, quiet=True), log=silent)
 
 

@@ -13,9 +13,9 @@ from score_jax.agents.replay import replay_sample
 from score_jax.agents.score.transfer import embed_new, grow_agent
 from score_jax.evaluation.transfer import TransferArgs, run_transfer
 from score_jax.run.build import build, restore_run
-from score_jax.run.checkpoint import CheckpointError
 from score_jax.run.config import TransferSpec
 from score_jax.run.driver import train
+from score_jax.run.validate import UsageError
 from tests.tiny import tiny_config
 
 
@@ -131,7 +131,7 @@ def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path):
 
 
 def test_checkpoint_from_another_env_is_refused(subset_run, tmp_path):
-    with pytest.raises(CheckpointError, match="trained on env 'probe', not 'greenhouse'"):
+    with pytest.raises(UsageError, match="--env greenhouse: the checkpoint was trained on 'probe'"):
         run_transfer(
             TransferArgs(
                 checkpoint=subset_run.run_dir, env="greenhouse", run_dir=str(tmp_path / "x")

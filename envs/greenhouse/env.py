@@ -347,3 +347,6 @@ def make_greenhouse(
         config=config,
         space=greenhouse_space(config.discrete_hours),
     )
+
+
+make_greenhouse.config_class = GreenhouseConfig  # typed --env-options (envs.option_types)

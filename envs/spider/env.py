@@ -229,3 +229,8 @@ def make_spider(legs: Sequence[str | LegSpec] | None = None, **overrides) -> Spi
       ValueError: an unknown leg name or override (the message lists the accepted ones).
     """
     return SpiderEnv(select_legs(legs), build_config(SpiderConfig, overrides))
+
+
+# typed --env-options (envs.option_types): the config's fields and the legs to keep, by name
+make_spider.config_class = SpiderConfig
+make_spider.extra_options = {"legs": tuple[str, ...] | None}

@@ -13,10 +13,11 @@ from typing import Literal
 
 import tyro
 
+from score_jax.cli.errors import guarded
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import restore_run
-from score_jax.run.checkpoint import CheckpointError
 from score_jax.run.compile_cache import enable_compile_cache
+from score_jax.run.validate import UsageError, validate_robustness_args
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,15 +35,18 @@ class RobustnessArgs:
 
 
 def main(args: RobustnessArgs) -> int:
+    """Sweep; errors as ``error:`` lines, exit status 2 (usage) or 1 (run) (``cli.errors``)."""
     enable_compile_cache(enabled=args.compile_cache)
-    try:
-        run = restore_run(args.run_dir, policy=args.policy)
-    except CheckpointError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+    return guarded(lambda: _sweep(args))
+
+
+def _sweep(args: RobustnessArgs) -> None:
+    problems = validate_robustness_args(args)  # before anything is built; creates nothing
+    if problems:
+        raise UsageError(problems)
+    run = restore_run(args.run_dir, policy=args.policy)
     run_sweep(run, args.seeds)
     print(f"wrote {os.path.join(run.run_dir, 'robustness.json')} and robustness.png")
-    return 0
 
 
 def cli() -> int:

@@ -15,27 +15,29 @@ import sys
 
 import tyro
 
+from score_jax.cli.errors import guarded
 from score_jax.evaluation.curves import plot_learning_curve
 from score_jax.evaluation.report import final_evaluation, render_policy
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import with_best_policy
-from score_jax.run.checkpoint import CheckpointError
 from score_jax.run.compile_cache import enable_compile_cache
 from score_jax.run.config import TrainConfig
-from score_jax.run.driver import NonFiniteError, train
+from score_jax.run.driver import train
 from score_jax.run.summary import describe_environment
 
 
 def main(cfg: TrainConfig) -> int:
+    """Train, then report; every error a user can cause is one ``error:`` line per problem and
+    exit status 2 (usage) or 1 (run), never a traceback (``cli.errors``)."""
     enable_compile_cache(enabled=cfg.compile_cache)
-    try:
-        if cfg.describe:
-            print(describe_environment(cfg.env, cfg.env_overrides()))
-            return 0
-        run = train(cfg)
-    except (NonFiniteError, CheckpointError, ValueError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+    return guarded(lambda: _train_and_report(cfg))
+
+
+def _train_and_report(cfg: TrainConfig) -> None:
+    if cfg.describe:
+        print(describe_environment(cfg.env, cfg.env_overrides()))
+        return
+    run = train(cfg)
     print(f"\nrun directory: {run.run_dir}")
     curve = os.path.join(run.run_dir, "learning_curve.png")
     plot_learning_curve(
@@ -48,7 +50,6 @@ def main(cfg: TrainConfig) -> int:
         run_sweep(run, run.config.robustness_seeds)
     if run.config.render:
         render_policy(run, run.config.render_steps, os.path.join(run.run_dir, "render"))
-    return 0
 
 
 def cli() -> int:

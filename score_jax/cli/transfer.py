@@ -13,20 +13,15 @@ import sys
 
 import tyro
 
+from score_jax.cli.errors import guarded
 from score_jax.evaluation.transfer import TransferArgs, run_transfer
-from score_jax.run.checkpoint import CheckpointError
 from score_jax.run.compile_cache import enable_compile_cache
-from score_jax.run.recorder import NonFiniteError
 
 
 def main(args: TransferArgs) -> int:
+    """Transfer; errors as ``error:`` lines, exit status 2 (usage) or 1 (run) (``cli.errors``)."""
     enable_compile_cache(enabled=args.compile_cache)
-    try:
-        run_transfer(args)
-    except (CheckpointError, NonFiniteError, ValueError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    return 0
+    return guarded(lambda: run_transfer(args))
 
 
 def cli() -> int:

@@ -19,9 +19,10 @@ import numpy as np
 from score_jax.agents.growth import plan
 from score_jax.evaluation.curves import plot_curves
 from score_jax.run.build import resolve_agent_index, restore_run
-from score_jax.run.checkpoint import CheckpointError, dump_json
+from score_jax.run.checkpoint import dump_json
 from score_jax.run.config import TransferSpec
 from score_jax.run.driver import train
+from score_jax.run.validate import UsageError, transfer_run_dir, validate_transfer_args
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +61,9 @@ def _mean_std(x) -> dict:
 
 
 def run_transfer(args: TransferArgs, log=print) -> dict:
+    problems = validate_transfer_args(args)  # every problem, before anything is restored
+    if problems:
+        raise UsageError(problems)
     src = restore_run(args.checkpoint, log=log)
     if src.algo.grow is None:
         raise ValueError(
@@ -67,23 +71,15 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
             "the sub-spaces it was trained on, so it cannot grow by unseen ones "
             "(transfer.py grows score, isac, maac, qmix, sac, ppo and hppo runs)"
         )
-    if args.env is not None and args.env != src.config.env:
-        raise CheckpointError(
-            f"checkpoint {args.checkpoint} was trained on env {src.config.env!r}, not {args.env!r}"
-        )
     space = src.env.space
-    names = (
-        ()
-        if args.subspaces is None
-        else tuple(x.strip() for x in args.subspaces.split(",") if x.strip())
-    )
+    names = () if args.subspaces is None else tuple(x.strip() for x in args.subspaces.split(","))
     target = resolve_agent_index(space, names)
     p = plan(src.agent_index, target)
     new_names = [space.names[i] for i in p.agent_index[p.is_new]]
     log(f"transfer: {[space.names[i] for i in src.agent_index]} + new {new_names}")
     # one embedding key per seed (seed s: PRNGKey(s + 40000), as a one-seed run of s)
     embed_keys = [jax.random.split(jax.random.PRNGKey(s + 40_000))[0] for s in src.seeds]
-    run_dir = args.run_dir or args.checkpoint.rstrip("/") + "-transfer"
+    run_dir = transfer_run_dir(args)
     total = args.total_steps if args.total_steps is not None else src.spec.total_steps
     cfg = dataclasses.replace(
         src.config,

@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import os
 import shutil
+import time
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from score_jax.run.checkpoint import Checkpointer, checkpoint_dir
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, checkpoint_dir
 
 BEST = "best"
 
@@ -29,10 +30,11 @@ class BestPolicy:
     first): one checkpoint of the seed-stacked agent state, each seed's slot its own best.
 
     ``meta["best_steps"]`` / ``meta["best_returns"]`` (lists over seeds) say when each seed's
-    best was evaluated and what it scored (None / -inf for a seed without one yet).
+    best was evaluated and what it scored (None / -inf for a seed without one yet). A damaged
+    best-policy checkpoint never stops the run: it is set aside and a new best is kept.
     """
 
-    def __init__(self, run_dir: str, fresh: bool, num_seeds: int = 1):
+    def __init__(self, run_dir: str, fresh: bool, num_seeds: int = 1, log=print):
         if fresh and os.path.isdir(checkpoint_dir(run_dir, BEST)):  # a new run never inherits
             shutil.rmtree(checkpoint_dir(run_dir, BEST))
         self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
@@ -41,9 +43,19 @@ class BestPolicy:
         self._agent: Any = None
         self._saved = self.ckpt.latest_step() is not None
         if self._saved:
-            meta = self.ckpt.read_meta()
-            self.steps = [None if x is None else int(x) for x in meta["best_steps"]]
-            self.returns = np.asarray(meta["best_returns"], float)
+            try:
+                meta = self.ckpt.read_meta()
+            except CheckpointError as e:  # a damaged best policy never stops the run
+                log(f"warning: {e}; the run keeps a new best policy from here on")
+                self.ckpt.close()
+                shutil.move(
+                    self.ckpt.directory, f"{self.ckpt.directory}.unusable-{time.time():.0f}"
+                )
+                self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
+                self._saved = False
+            else:
+                self.steps = [None if x is None else int(x) for x in meta["best_steps"]]
+                self.returns = np.asarray(meta["best_returns"], float)
 
     def offer(self, step: int, eval_returns, agent_state: Any, meta: dict) -> np.ndarray:
         """Keep each seed's slot of ``agent_state`` (seed-stacked) whose return in

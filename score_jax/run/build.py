@@ -16,7 +16,7 @@ from envs.wrappers import with_action_repeat
 from score_jax import registry
 from score_jax.agents.base import Algorithm, BuildContext
 from score_jax.run.best_policy import has_best, restore_best
-from score_jax.run.checkpoint import Checkpointer, check_space_matches
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, saved_run_config
 from score_jax.run.config import RunSpec, TrainConfig, TransferSpec, from_dict, resolve, to_dict
 from score_jax.run.episodes import EvalResult, make_evaluator
 from score_jax.run.external import ExternalTrainer
@@ -206,13 +206,17 @@ def restore_run(run_dir: str, log=print, policy: str = "last") -> Run:
     """
     if policy not in ("last", "best"):
         raise ValueError(f"policy must be 'last' or 'best', got {policy!r}")
-    ckpt = Checkpointer(run_dir)
-    meta = ckpt.read_meta()
-    cfg = from_dict(TrainConfig, meta["config"])
-    run = build(cfg, None, run_dir, restoring=True, log=log, transfer=saved_transfer(meta))
-    state, meta = ckpt.restore(run.trainer.init(seed_keys(run.seeds)[1]))
-    check_space_matches(meta, cfg.env, run.env.space)
-    ckpt.close()
+    ckpt = Checkpointer(run_dir, create=False)  # reads only: "no run in ..." when absent
+    config, transfer = saved_run_config(run_dir)
+    cfg = from_dict(TrainConfig, config)
+    grown = saved_transfer({"transfer": transfer})
+    run = build(cfg, None, run_dir, restoring=True, log=log, transfer=grown)
+    try:  # the newest usable checkpoint (skipped ones: one warning line)
+        state, _ = ckpt.restore_usable(
+            run.trainer.init(seed_keys(run.seeds)[1]), checks_for(config, run.env.space), log=log
+        )
+    finally:
+        ckpt.close()
     run.state = run.trainer.place(state)
     return with_best_policy(run, log) if policy == "best" else run
 
@@ -222,7 +226,11 @@ def with_best_policy(run: Run, log=print) -> Run:
     without a best keep theirs; unchanged if the run kept none)."""
     if not has_best(run.run_dir):
         return run
-    best, meta = restore_best(run.run_dir, run.state.agent)
+    try:
+        best, meta = restore_best(run.run_dir, run.state.agent)
+    except CheckpointError as e:  # a damaged best policy never stops the run
+        log(f"warning: the best policy of {run.run_dir} is unusable ({e}); keeping the last one")
+        return run
     found = np.asarray([s is not None for s in meta["best_steps"]])
     keep = jnp.asarray(found)
     pick = lambda b, last: jnp.where(keep.reshape((-1,) + (1,) * (b.ndim - 1)), b, last)

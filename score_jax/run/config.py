@@ -10,7 +10,6 @@ once, at the start of a run, and everything below reads the ``RunSpec``.
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import os
 from typing import Literal
@@ -73,7 +72,9 @@ class TrainConfig:
     run_dir: str | None = None
     """Where checkpoints, metrics.csv and plots go; None = runs/<env>-<algo>-s<seed>."""
     resume: str | None = None
-    """Resume the run in this directory from its latest checkpoint (the saved config is used)."""
+    """Resume the run in this directory from its newest usable checkpoint, with its saved
+    configuration: ``--total-steps N`` extends it to N decisions; any other option that differs
+    from the saved one is refused (``run.validate``)."""
     subspaces: str | None = None
     """Comma-separated sub-spaces to control (the others stay at their defaults); None = all."""
     env_options: tuple[str, ...] = ()
@@ -132,18 +133,13 @@ class TrainConfig:
     fixed-width baselines."""
 
     def env_overrides(self) -> dict:
-        """``env_options`` parsed into keyword overrides (values as Python literals when
-        possible)."""
-        out = {}
-        for item in self.env_options:
-            if "=" not in item:
-                raise ValueError(f"env option {item!r} must look like key=value")
-            key, value = item.split("=", 1)
-            try:
-                out[key] = ast.literal_eval(value)
-            except (ValueError, SyntaxError):
-                out[key] = value
-        return out
+        """``env_options`` parsed into keyword overrides of ``envs.make``, each value typed
+        against the environment's option (``envs.parse_options``: ``discrete_hours=false`` is
+        False, ``=maybe`` an error); a ValueError lists every problem."""
+        values, problems = envs.parse_options(self.env, self.env_options)
+        if problems:
+            raise ValueError("; ".join(problems))
+        return values
 
     def agent_names(self) -> tuple[str, ...]:
         """The sub-spaces named by ``subspaces`` (empty: all of them)."""

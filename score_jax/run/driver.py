@@ -13,7 +13,6 @@ Both loops record their rows through one ``RunRecorder``.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from collections.abc import Callable
@@ -21,14 +20,15 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from score_jax.run.build import Run, build, saved_transfer, seed_keys
-from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches, dump_json
-from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_dict, to_dict
+from score_jax.run.build import Run, build, seed_keys
+from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, dump_json
+from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, to_dict
 from score_jax.run.external import RESUME_ERROR, fit_external
 from score_jax.run.provenance import provenance
 from score_jax.run.recorder import NonFiniteError, RunRecorder
 from score_jax.run.summary import announce, resolved_config, tracking_kinds
 from score_jax.run.trainer import TrainState
+from score_jax.run.validate import prepare_train
 
 __all__ = ["NonFiniteError", "Run", "train"]
 
@@ -78,11 +78,9 @@ def train(
     ``transfer`` saying which sub-spaces are new); ``on_epoch(run, row)`` is called after every
     metrics row (one per seed, with its ``seed``).
     """
-    if cfg.resume:
-        meta = Checkpointer(cfg.resume).read_meta()
-        saved = from_dict(TrainConfig, meta["config"])
-        cfg = dataclasses.replace(saved, resume=cfg.resume, run_dir=cfg.resume, quiet=cfg.quiet)
-        transfer = saved_transfer(meta)
+    # every check that needs no computation, before any (run.validate); a --resume takes the
+    # saved configuration, --total-steps extending it (``record`` goes to config.json)
+    cfg, transfer, record = prepare_train(cfg, transfer, log=log)
     run_dir = default_run_dir(cfg)
     announce(cfg, run_dir, log)  # the header, before any heavy set-up
     os.makedirs(run_dir, exist_ok=True)
@@ -99,7 +97,7 @@ def train(
             f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or choose "
             "another --run-dir"
         )
-    if not cfg.resume:
+    if not cfg.resume or record is not None:
         dump_json(
             os.path.join(run_dir, "config.json"),
             {
@@ -108,6 +106,7 @@ def train(
                 "seeds": list(run.seeds),
                 "provenance": provenance(),
                 "transfer": run.meta()["transfer"],
+                **(record or {}),
             },
         )
 
@@ -118,9 +117,9 @@ def train(
     state = run.trainer.init(keys_train, run.frozen)
     if initial_agent is not None and not cfg.resume:
         state = run.trainer.place(state.replace(agent=initial_agent(run, state.agent)))
-    if cfg.resume:
-        state, meta = ckpt.restore(state)
-        check_space_matches(meta, cfg.env, run.env.space)
+    if cfg.resume:  # the newest usable checkpoint (skipped ones: one warning line)
+        check = checks_for(to_dict(cfg), run.env.space)
+        state, _ = ckpt.restore_usable(state, check, log=log, set_aside=True)
         state = run.trainer.place(state)
         log(f"resumed {run_dir} at env step {int(np.max(state.env_steps))}")
     run.state = state

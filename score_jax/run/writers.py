@@ -122,15 +122,23 @@ def _read_header(path: str) -> list[str] | None:
     return header
 
 
+def _step_at_most(text: str, max_step: int) -> bool:
+    try:
+        return int(float(text)) <= max_step
+    except ValueError:
+        return False
+
+
 def truncate_csv(path: str, max_step: int) -> int:
     """Drop the rows of ``path`` whose ``env_steps`` is above ``max_step`` (on resume, the rows
-    after the checkpoint are produced again); keeps the header. Returns the rows kept."""
+    after the checkpoint are produced again), and any row cut short (a write interrupted by a
+    full disk); keeps the header. Returns the rows kept."""
     header = _read_header(path)
     if header is None:
         return 0
     with open(path, newline="") as f:
         rows = [r for r in csv.reader(f)][1:]
-    kept = [r for r in rows if r and int(float(r[0])) <= max_step]
+    kept = [r for r in rows if len(r) == len(header) and _step_at_most(r[0], max_step)]
     tmp = path + ".tmp"
     with open(tmp, "w", newline="") as f:
         w = csv.writer(f)
