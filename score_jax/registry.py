@@ -21,11 +21,14 @@ Builder = Callable[..., Algorithm]
 class AlgorithmEntry:
     """``settings``: the ``TrainConfig`` field the builder receives (``score``, ``marl``,
     ``single``); ``builder``: the builder or its ``"module:function"`` path;
-    ``in_process``: trained by the shared off-policy trainer (resumable), not brax's loop."""
+    ``in_process``: trained by the shared off-policy trainer (resumable), not brax's loop;
+    ``grows``: its runs can grow by unseen sub-spaces (``Algorithm.grow``; checked before any
+    work by ``score-transfer``)."""
 
     settings: str
     builder: Builder | str
     in_process: bool = True
+    grows: bool = True
 
 
 _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
@@ -33,7 +36,7 @@ _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
     {
         "score": AlgorithmEntry("score", "score_jax.agents.score.algorithm:make_score"),
         "isac": AlgorithmEntry("marl", "score_jax.agents.marl.isac:make_isac"),
-        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg"),
+        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg", grows=False),
         "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac"),
         "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix"),
         "sac": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_sac", in_process=False),

@@ -17,7 +17,7 @@ def test_score_trains_on_the_spider(tmp_path):
         total_steps=400,
         checkpoint_every=400,
     )
-    run = train(cfg, log=lambda *a: None)
+    run = train(cfg, log=lambda *a: None).for_seed(0)
     assert run.algo.off_policy.n_agents == 8 and run.algo.off_policy.width == 3
     assert int(run.state.updates) > 0
     assert all(
@@ -25,7 +25,7 @@ def test_score_trains_on_the_spider(tmp_path):
     )
     hvae_c = run.state.agent.consts.critic_inputs.c
     assert hvae_c.shape[0] == 8 and np.all(np.isfinite(np.asarray(hvae_c)))
-    restored = restore_run(str(tmp_path / "spider"), log=lambda *a: None)
+    restored = restore_run(str(tmp_path / "spider"), log=lambda *a: None).for_seed(0)
     jax.tree.map(
         np.testing.assert_array_equal,
         jax.device_get(restored.state.agent.actor),

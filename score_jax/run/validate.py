@@ -450,6 +450,12 @@ def validate_transfer_args(args) -> list[str]:
     problems += name_problems
     if src is None:
         return problems
+    if src.algo in registry.algorithm_names() and not registry.entry(src.algo).grows:
+        return problems + [
+            f"--checkpoint {args.checkpoint} was trained with {src.algo!r}, whose networks are "
+            "tied to the sub-spaces it was trained on, so it cannot grow by unseen ones "
+            "(score-transfer grows score, isac, maac, qmix, sac, ppo and hppo runs)"
+        ]
     if args.env is not None and args.env != src.env:
         problems.append(f"--env {args.env}: the checkpoint was trained on {src.env!r}")
     run_dir = transfer_run_dir(args)
