@@ -10,11 +10,13 @@ score-train --help                           # every option
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 
 import tyro
 
+from score_jax import registry
 from score_jax.cli.errors import guarded
 from score_jax.evaluation.curves import plot_learning_curve
 from score_jax.evaluation.report import final_evaluation, render_policy
@@ -22,6 +24,7 @@ from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import with_best_policy
 from score_jax.run.compile_cache import enable_compile_cache
 from score_jax.run.config import TrainConfig
+from score_jax.run.cpu_split import split_cpu_for_seeds
 from score_jax.run.driver import train
 from score_jax.run.summary import describe_environment
 
@@ -29,8 +32,25 @@ from score_jax.run.summary import describe_environment
 def main(cfg: TrainConfig) -> int:
     """Train, then report; every error a user can cause is one ``error:`` line per problem and
     exit status 2 (usage) or 1 (run), never a traceback (``cli.errors``)."""
+    if _in_process(cfg.algo):  # brax's own loops use every device themselves
+        split_cpu_for_seeds(_num_seeds(cfg), cfg.cpu_devices)
     enable_compile_cache(enabled=cfg.compile_cache)
     return guarded(lambda: _train_and_report(cfg))
+
+
+def _num_seeds(cfg: TrainConfig) -> int:
+    """The run's seeds: a resumed run's from its config.json (read before JAX starts)."""
+    if cfg.resume:
+        try:
+            with open(os.path.join(cfg.resume, "config.json")) as f:
+                return int(json.load(f).get("num_seeds", 1))
+        except (OSError, ValueError):
+            return 1  # validation reports the problem
+    return cfg.num_seeds
+
+
+def _in_process(algo: str) -> bool:
+    return algo not in registry.algorithm_names() or registry.entry(algo).in_process
 
 
 def _train_and_report(cfg: TrainConfig) -> None:

@@ -105,7 +105,13 @@ class TrainConfig:
     quiet: bool = False
     """No progress bar."""
     data_parallel: bool = True
-    """Shard environments and batches over all devices when there are several."""
+    """Shard over all devices when there are several: whole seeds when ``num_seeds`` is a
+    multiple of the device count, else each seed's environments and batches."""
+    cpu_devices: int | None = None
+    """On a CPU, XLA host devices to split the machine into (``score-train`` sets
+    ``--xla_force_host_platform_device_count`` before JAX starts); None = for a run of several
+    seeds, one per core when the seeds divide evenly over them (XLA runs a program on about one
+    core), else 1. Ignored when XLA_FLAGS already sets a device count."""
     track: tuple[Literal["csv", "tensorboard", "wandb"], ...] = ("csv",)
     """Metric writers, several allowed; csv (<run-dir>/metrics.csv) is always on. tensorboard:
     event files in <run-dir>/tensorboard; wandb: a Weights & Biases run in <run-dir>/wandb

@@ -47,11 +47,12 @@ def _devices(cfg: TrainConfig) -> str:
     if jax.process_count() > 1:
         line += f" over {jax.process_count()} processes"
     if len(devices) > 1:
-        line += (
-            ", envs and batches sharded (data parallel)"
-            if cfg.data_parallel
-            else ", one used (--no-data-parallel)"
-        )
+        if not cfg.data_parallel:
+            line += ", one used (--no-data-parallel)"
+        elif cfg.num_seeds % len(devices) == 0:
+            line += ", seeds sharded (whole seeds per device)"
+        else:
+            line += ", each seed's envs and batches sharded (data parallel)"
     return line
 
 
@@ -90,7 +91,13 @@ def header_lines(cfg: TrainConfig, spec: RunSpec, env) -> list[str]:
             + (f"; options {options}" if options else ""),
         ),
         ("algo", cfg.algo),
-        ("seed", str(cfg.seed)),
+        (
+            "seed",
+            str(cfg.seed)
+            if cfg.num_seeds == 1
+            else f"{cfg.seed}..{cfg.seed + cfg.num_seeds - 1} "
+            f"({cfg.num_seeds} seeds in one program)",
+        ),
         (
             "budget",
             f"{spec.total_steps} decisions = {spec.total_steps * spec.action_repeat} env steps, "

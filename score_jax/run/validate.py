@@ -224,7 +224,9 @@ def _check_train(cfg: TrainConfig, resuming: bool = False) -> tuple[list[str], A
             f"{o.replay_capacity}: the buffer could never hold a batch"
         )
     devices = jax.device_count()
-    if in_process and cfg.data_parallel and devices > 1:
+    # seeds that divide evenly over the devices are sharded whole (SeedTrainer); otherwise each
+    # seed's environments and batches are
+    if in_process and cfg.data_parallel and devices > 1 and cfg.num_seeds % devices:
         for name in ("num_envs", "batch_size"):
             n = getattr(o, name)
             if n >= 1 and n % devices:
