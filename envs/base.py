@@ -7,7 +7,8 @@ for every environment. Simulator parameters (weather, crop and physics parameter
 fields of the environment object, so a batch of variants is ``jax.vmap`` over environments.
 
 Subclass ``CompositeEnv`` to inherit the defaults of its optional members (``hints``,
-``reference_policies``); ``envs.make`` refuses an object that lacks a member of the protocol.
+``reference_policies``, ``planned_references``); ``envs.make`` refuses an object that lacks a
+member of the protocol.
 """
 
 from __future__ import annotations
@@ -104,6 +105,12 @@ class CompositeEnv(Protocol):
         """Scripted policies the end-of-run report compares with (e.g. a grower heuristic)."""
         return {}
 
+    def planned_references(self, action_repeat: int = 1) -> Mapping[str, ReferencePolicy]:
+        """Reference policies found by planning on the simulator itself, for decisions held
+        ``action_repeat`` steps (greenhouse: the best constant and open-loop schedules). May
+        be expensive the first time (a search); the report asks only when told to."""
+        return {}
+
 
 def missing_members(env: object) -> list[str]:
     """Members of the ``CompositeEnv`` protocol that ``env`` lacks (empty if it satisfies it)."""
@@ -116,6 +123,7 @@ def missing_members(env: object) -> list[str]:
         "step",
         "hints",
         "reference_policies",
+        "planned_references",
     )
     return [m for m in members if not hasattr(env, m)]
 

@@ -51,6 +51,9 @@ class AutoReset(CompositeEnv):
     def reference_policies(self) -> Mapping[str, ReferencePolicy]:
         return self.env.reference_policies()
 
+    def planned_references(self, action_repeat: int = 1) -> Mapping[str, ReferencePolicy]:
+        return self.env.planned_references(action_repeat)
+
     def reset(self, key: jax.Array) -> EnvState:
         key, key_env = jax.random.split(key)
         state = self.env.reset(key_env)
@@ -123,6 +126,9 @@ class ActionRepeat(CompositeEnv):
 
     def reference_policies(self) -> Mapping[str, ReferencePolicy]:
         return self.env.reference_policies()
+
+    def planned_references(self, action_repeat: int = 1) -> Mapping[str, ReferencePolicy]:
+        return self.env.planned_references(action_repeat * self.repeat)
 
     def reset(self, key: jax.Array) -> EnvState:
         return self.env.reset(key)

@@ -185,9 +185,25 @@ def test_score_eval_writes_the_table_of_a_saved_run(tracked_run, capsys):
     assert "| score (last, step 400) |" in md and "| random |" in md
 
 
-def test_score_eval_plots_the_greenhouse_season_next_to_the_references(tmp_path):
+def test_score_eval_plots_the_greenhouse_season_next_to_the_references(tmp_path, monkeypatch):
     """A greenhouse run of a few decisions (16-day seasons, decisions held 8 days, profit so the
-    returns are not all 0), its best policy evaluated and its season plotted."""
+    returns are not all 0), its best policy evaluated and its season plotted, next to the
+    planned references (their search is ``test_greenhouse_references``'; here it is replaced by
+    two fixed schedules, so what is checked is that they reach the table, the share column and
+    the plot for the run's decision interval)."""
+    from envs.greenhouse import references as refs
+
+    asked = []
+
+    def fixed_schedules(env, hold_days=1, **kw):
+        asked.append(hold_days)
+        space = env.space
+        days = env.episode_length
+        warm = space.from_physical(space.to_physical(space.default_action()).at[0, :].add(3.0))
+        loop = np.stack([space.default_action()] * 8 + [warm] * (days - 8))
+        return {"best constant": np.asarray(warm), "open-loop": loop}
+
+    monkeypatch.setattr(refs, "reference_schedules", fixed_schedules)
     run_dir = str(tmp_path / "gh")
     cfg = tiny_config(
         run_dir,
@@ -205,12 +221,16 @@ def test_score_eval_plots_the_greenhouse_season_next_to_the_references(tmp_path)
     out = evaluate_saved_run(run_dir, policy="best", log=lambda *a: None)
     label = "isac (best, step 200)"
     assert out["label"] == label and out["out_dir"] == os.path.join(run_dir, "eval-best")
-    assert set(out["rows"]) == {label, "random", "default", "expert"}
+    names = {label, "random", "default", "expert", "best constant", "open-loop"}
+    assert set(out["rows"]) == names and set(asked) == {8}  # decisions held 8 days
+    assert out["rows"]["open-loop"]["mean"] < 0  # a 16-day season's profit: no share given
+    assert "share_of_open_loop" not in out["rows"][label]
     assert os.path.getsize(out["files"]["season"]) > 20_000
     md = open(out["files"]["markdown"]).read()
     assert "Season totals" in md and f"| {label} |" in md and "| expert |" in md
     # the plotted seasons hold decisions as the evaluation does: the same returns
-    for name in (label, "default", "expert"):
+    assert "| open-loop |" in md and "share of open-loop" in md  # (the column, empty here)
+    for name in (label, "default", "expert", "best constant", "open-loop"):
         assert out["season"][name]["return"] == pytest.approx(out["rows"][name]["mean"], abs=1e-3)
         assert out["season"][name]["return"] != 0.0
 

@@ -186,6 +186,43 @@ def test_reference_cache_round_trip_and_corrupt_file(env, tmp_path, monkeypatch)
     assert len(list(tmp_path.iterdir())) == 1  # no temporary files left behind
 
 
+def test_planned_references_play_their_schedules_for_the_decision_interval(env, tmp_path):
+    """``reference_schedules(hold_days=8)`` through ``schedule_policy``, evaluated as the report
+    does (the env's decisions held 8 days, ``run.episodes``), returns the searched return; the
+    cache holds the schedules, and ``ActionRepeat`` asks its env for its own interval."""
+    from envs.wrappers import ActionRepeat
+    from score_jax.run.episodes import evaluate, scripted_act_fn
+
+    kwargs = dict(cache_dir=str(tmp_path), constant_kwargs=CONSTANT, open_loop_kwargs=OPEN_LOOP)
+    schedules = refs.reference_schedules(env, KEY, hold_days=8, **kwargs)
+    assert schedules["best constant"].shape == (env.space.n, env.space.max_dim)
+    loop = schedules["open-loop"]
+    assert loop.shape == (DAYS, env.space.n, env.space.max_dim)
+    np.testing.assert_array_equal(loop[8:16], np.broadcast_to(loop[8], loop[8:16].shape))
+    returns = refs.greenhouse_references(
+        env, KEY, cache_dir=str(tmp_path), constant_kwargs=CONSTANT,
+        open_loop_kwargs={**OPEN_LOOP, "hold_days": 8},
+    )  # fmt: skip
+    assert len(list(tmp_path.glob("*.json"))) == 1  # the same cache entry
+    held = ActionRepeat(env, 8)
+    idx = np.arange(env.space.n)
+    for name, schedule in schedules.items():
+        act = scripted_act_fn(refs.schedule_policy(schedule), idx, env.space.max_dim)
+        got = jax.jit(lambda k, act=act: evaluate(held, act, k, 1, idx).returns)(KEY)
+        assert float(got[0]) == pytest.approx(returns[name], rel=1e-5)
+
+
+def test_action_repeat_asks_for_planned_references_of_its_decision_interval(env, monkeypatch):
+    from envs.wrappers import ActionRepeat, AutoReset
+
+    asked = []
+    monkeypatch.setattr(
+        refs, "reference_schedules", lambda e, hold_days=1, **kw: asked.append(hold_days) or {}
+    )
+    assert AutoReset(ActionRepeat(ActionRepeat(env, 2), 4)).planned_references() == {}
+    assert env.planned_references() == {} and asked == [8, 1]
+
+
 def test_cache_dir_default_honours_environment(monkeypatch, tmp_path):
     monkeypatch.setenv("SCORE_JAX_CACHE", str(tmp_path))
     assert refs.default_cache_dir() == os.path.join(str(tmp_path), "references")

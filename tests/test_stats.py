@@ -161,3 +161,15 @@ def test_plots_write_files(tmp_path):
     for p in (path, profile_path):
         with open(p, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_learned_returns_are_given_as_a_share_of_a_positive_open_loop_reference():
+    from score_jax.evaluation.report import add_shares
+
+    rows = {"score": {"mean": 900.0}, "expert": {"mean": 1000.0}, "open-loop": {"mean": 1200.0}}
+    add_shares(rows, ["score"])
+    assert rows["score"]["share_of_open_loop"] == pytest.approx(0.75)
+    assert "share_of_open_loop" not in rows["expert"]  # references get none
+    loss = {"score": {"mean": -3.0}, "open-loop": {"mean": -1.0}}
+    assert "share_of_open_loop" not in add_shares(loss, ["score"])["score"]
+    assert "share_of_open_loop" not in add_shares({"score": {"mean": 1.0}}, ["score"])["score"]

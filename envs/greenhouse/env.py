@@ -159,6 +159,16 @@ class GreenhouseEnv(CompositeEnv):
         """The documented grower heuristic (``envs.greenhouse.expert``)."""
         return {"expert": lambda state: expert_action(self, state)}
 
+    def planned_references(self, action_repeat: int = 1) -> dict[str, ReferencePolicy]:
+        """The best constant schedule and the best open-loop schedule for decisions held
+        ``action_repeat`` days (``envs.greenhouse.references``: a batched search and gradient
+        ascent through this simulator; about a minute on a CPU the first time, then cached)."""
+        # deferred: references imports this module
+        from envs.greenhouse.references import reference_schedules, schedule_policy
+
+        found = reference_schedules(self, hold_days=action_repeat)
+        return {name: schedule_policy(schedule) for name, schedule in found.items()}
+
     def expert_action(self, state: EnvState) -> jax.Array:
         """The grower heuristic for ``state`` (``envs.greenhouse.expert.expert_action``)."""
         return expert_action(self, state)

@@ -24,7 +24,9 @@ simulator itself achieves:
   (or the whole trace) of any constant or per-day schedule, through ``env.step``.
 - ``greenhouse_references(env)``: both references' returns by name, with an on-disk JSON cache
   keyed by the environment (config, weather and parameter arrays) and the simulator's source
-  code, so an end-of-run report pays the search once per environment and code version.
+  code, so an end-of-run report pays the search once per environment and code version;
+  ``reference_schedules(env, hold_days=K)`` the schedules themselves (same cache), which
+  ``schedule_policy`` turns into reference policies (``GreenhouseEnv.planned_references``).
 
 Pure JAX (with optax for Adam); of the project it imports only ``envs.greenhouse`` and
 ``score_jax.core.spaces``, so neither MuJoCo nor brax is loaded.
@@ -53,7 +55,7 @@ from score_jax.core.spaces import CompositeSpace
 
 HOURS = ("lighting", "irrigation")  # the two timer sub-spaces, (start, end) hours each
 CONTINUOUS_ROWS = ("temperature", "co2")  # the two hourly setpoint sub-spaces
-CACHE_FORMAT = 1  # bump when the cache entry's layout changes
+CACHE_FORMAT = 2  # bump when the cache entry's layout changes (2: the schedules too)
 
 
 # --- true season evaluation (the real env.step) ---------------------------------------------------
@@ -668,6 +670,7 @@ def _read_cache(path: str, cache_key: str) -> dict | None:
         ok = entry.get("format") == CACHE_FORMAT and entry.get("cache_key") == cache_key
         ok = ok and isinstance(returns, dict) and set(returns) == set(REFERENCE_NAMES)
         ok = ok and all(isinstance(v, (int, float)) and math.isfinite(v) for v in returns.values())
+        ok = ok and set(entry["schedules"]) == set(REFERENCE_NAMES)
         return entry if ok else None
     except Exception:  # unreadable, not JSON, wrong layout: recompute
         return None
@@ -702,6 +705,40 @@ def greenhouse_references(
     (environment fingerprint, key, search settings, code version); a missing, corrupt or
     mismatching file is recomputed and rewritten. ``use_cache=False`` neither reads nor writes.
     """
+    entry = _reference_entry(env, key, cache_dir, use_cache, constant_kwargs, open_loop_kwargs)
+    return {k: float(entry["returns"][k]) for k in REFERENCE_NAMES}
+
+
+def reference_schedules(
+    env,
+    key: jax.Array | None = None,
+    *,
+    hold_days: int = 1,
+    cache_dir: str | None = None,
+    use_cache: bool = True,
+    constant_kwargs: dict[str, Any] | None = None,
+    open_loop_kwargs: dict[str, Any] | None = None,
+) -> dict[str, np.ndarray]:
+    """The two references as schedules, by name: ``"best constant"`` normalised ``[n, max_dim]``
+    and ``"open-loop"`` ``[season_days, n, max_dim]`` optimised for decisions held ``hold_days``
+    days (the open-loop rows are constant over each decision). Same cache as
+    ``greenhouse_references`` (``hold_days`` is part of the search settings)."""
+    loop = {**(open_loop_kwargs or {}), "hold_days": int(hold_days)}
+    entry = _reference_entry(env, key, cache_dir, use_cache, constant_kwargs, loop)
+    return {k: np.asarray(entry["schedules"][k], np.float32) for k in REFERENCE_NAMES}
+
+
+def schedule_policy(schedule: np.ndarray):
+    """A ``ReferencePolicy`` that plays ``schedule`` (``[n, max_dim]`` every day, or
+    ``[D, n, max_dim]`` indexed by the state's day planted, the last row held after ``D``)."""
+    table = jnp.asarray(schedule, jnp.float32)
+    if table.ndim == 2:
+        return lambda state: table
+    return lambda state: table[jnp.minimum(state.sim.day, table.shape[0] - 1)]
+
+
+def _reference_entry(env, key, cache_dir, use_cache, constant_kwargs, open_loop_kwargs) -> dict:
+    """The cache entry (returns and schedules) of both searches, searched when not cached."""
     env = _base_env(env)
     key = _key(key)
     settings = {"constant": constant_kwargs or {}, "open_loop": open_loop_kwargs or {}}
@@ -716,24 +753,24 @@ def greenhouse_references(
     if use_cache:
         entry = _read_cache(path, cache_key)
         if entry is not None:
-            return {k: float(entry["returns"][k]) for k in REFERENCE_NAMES}
+            return entry
     const = best_constant_schedule(env, key, **(constant_kwargs or {}))
     loop = best_open_loop_schedule(env, key, constant=const, **(open_loop_kwargs or {}))
-    returns = {"best constant": const.season_return, "open-loop": loop.season_return}
+    entry = {
+        "format": CACHE_FORMAT,
+        "cache_key": cache_key,
+        "ident": ident,
+        "config": dataclasses.asdict(env.config),
+        "returns": {"best constant": const.season_return, "open-loop": loop.season_return},
+        "schedules": {"best constant": const.action.tolist(), "open-loop": loop.schedule.tolist()},
+        "constant_physical": const.physical.tolist(),
+        "cost_s": {"best constant": const.seconds, "open-loop": loop.seconds},
+        "seasons_evaluated": const.seasons_evaluated,
+        "open_loop_source": loop.source,
+    }
     if use_cache:
-        entry = {
-            "format": CACHE_FORMAT,
-            "cache_key": cache_key,
-            "ident": ident,
-            "config": dataclasses.asdict(env.config),
-            "returns": returns,
-            "constant_physical": const.physical.tolist(),
-            "cost_s": {"best constant": const.seconds, "open-loop": loop.seconds},
-            "seasons_evaluated": const.seasons_evaluated,
-            "open_loop_source": loop.source,
-        }
         try:
             _write_cache(path, entry)
         except OSError:  # a read-only or full disk costs the next call a search, not this one
             pass
-    return returns
+    return entry

@@ -40,6 +40,9 @@ class EvalArgs:
     """Steps of the rendered episode; None = the run's --render-steps."""
     out: str | None = None
     """Where the files go; None = <run-dir>/eval-<policy>."""
+    planned_references: bool | None = None
+    """Also evaluate (and plot) the references found by planning on the simulator (greenhouse:
+    best constant and open-loop schedules; see score-train --help); None = as the run did."""
     compile_cache: bool = True
     """JAX's persistent compilation cache (see score-train --help)."""
 
@@ -54,6 +57,7 @@ def main(args: EvalArgs) -> int:
             render=args.render,
             render_steps=args.render_steps,
             out_dir=args.out,
+            planned_references=args.planned_references,
         )
     except (CheckpointError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)

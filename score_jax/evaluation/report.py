@@ -49,14 +49,32 @@ def final_evaluation(
             }
     key = keys if not run.batched else keys[0]
     width = run.algo.off_policy.width
-    for name, act in reference_policies(run.env, run.agent_index, width).items():
+    planned = run.config.planned_references
+    for name, act in reference_policies(run.env, run.agent_index, width, planned).items():
         episodes = lambda k, act=act: evaluate(run.env, act, k, n_episodes, run.agent_index)
         rows[name] = _stats(np.asarray(jax.jit(episodes)(key).returns))
+    add_shares(rows, list(learned))
     log(_table(rows, n_episodes, run.num_seeds))
     dump_json(
         path or os.path.join(run.run_dir, "evaluation.json"),
         {"episodes": n_episodes, "seeds": list(run.seeds), "returns": rows},
     )
+    return rows
+
+
+# The upper reference a learned return is also given as a share of (the greenhouse's best
+# open-loop schedule, ``envs.greenhouse.references``), when the report evaluates it.
+UPPER_REFERENCE = "open-loop"
+
+
+def add_shares(rows: dict, learned: list[str]) -> dict:
+    """Give each learned row its mean as a share of the ``UPPER_REFERENCE`` row's mean
+    (``share_of_open_loop``), when that row exists and its mean is positive (a share of a
+    negative return, e.g. a season's loss, says nothing)."""
+    top = rows.get(UPPER_REFERENCE)
+    if top is not None and top["mean"] > 0:
+        for name in learned:
+            rows[name]["share_of_open_loop"] = rows[name]["mean"] / top["mean"]
     return rows
 
 
@@ -72,6 +90,8 @@ def _table(rows: dict, n_episodes: int, num_seeds: int) -> str:
     ]
     for k, v in rows.items():
         line = f"{k:<{width}s} {v['mean']:12.2f} {v['std']:9.2f} {v['min']:10.2f} {v['max']:10.2f}"
+        if "share_of_open_loop" in v:
+            line += f"   {100 * v['share_of_open_loop']:5.1f}% of open-loop"
         if "over_seeds" in v:
             iqm = v["over_seeds"]["iqm"]
             line += f"   IQM over seeds {format_interval(iqm['value'], iqm['lo'], iqm['hi'])}"

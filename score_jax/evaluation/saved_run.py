@@ -17,6 +17,7 @@ for and the run kept no best policy):
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import jax
@@ -52,13 +53,15 @@ def markdown_table(rows: dict, n_episodes: int) -> str:
     lines = [
         f"Episode returns over {n_episodes} episodes (the same seeds for every policy):",
         "",
-        "| policy | return mean | std | min | max |",
-        "|---|---:|---:|---:|---:|",
+        "| policy | return mean | std | min | max | share of open-loop |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
-    lines += [
-        f"| {k} | {v['mean']:.2f} | {v['std']:.2f} | {v['min']:.2f} | {v['max']:.2f} |"
-        for k, v in rows.items()
-    ]
+    for k, v in rows.items():
+        share = f"{100 * v['share_of_open_loop']:.1f}%" if "share_of_open_loop" in v else ""
+        lines.append(
+            f"| {k} | {v['mean']:.2f} | {v['std']:.2f} | {v['min']:.2f} | {v['max']:.2f} "
+            f"| {share} |"
+        )
     return "\n".join(lines)
 
 
@@ -154,7 +157,7 @@ def season_report(run: Run, label: str, out_dir: str, log=print) -> tuple[str, s
         label = f"{label}, seed {first.seeds[0]}"
     policies, agents = {label: first.algo.policy}, {label: first.state.agent}
     for name, act in reference_policies(
-        run.env, run.agent_index, run.algo.off_policy.width
+        run.env, run.agent_index, run.algo.off_policy.width, run.config.planned_references
     ).items():
         policies[name], agents[name] = (lambda _, act=act: act), None
     traces = held_seasons(env, policies, agents, run.agent_index, run.spec.action_repeat, key)
@@ -179,6 +182,7 @@ def evaluate_saved_run(
     render_steps: int | None = None,
     out_dir: str | None = None,
     log=print,
+    planned_references: bool | None = None,
 ) -> dict:
     """Evaluate ``run_dir``'s ``policy`` (``best`` or ``last``) against the reference policies
     over ``episodes`` episodes (None = the run's ``--eval-episodes``) and write the files the
@@ -187,6 +191,9 @@ def evaluate_saved_run(
     if policy not in ("best", "last"):
         raise ValueError(f"policy must be 'best' or 'last', got {policy!r}")
     run, policy, label = _load(run_dir, policy, log)
+    if planned_references is not None:  # else as the run's own report did
+        config = dataclasses.replace(run.config, planned_references=planned_references)
+        run = dataclasses.replace(run, config=config)
     n = int(episodes or run.config.eval_episodes)
     if n < 1:
         raise ValueError(f"episodes must be >= 1, got {n}")

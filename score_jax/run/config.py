@@ -98,6 +98,11 @@ class TrainConfig:
     end-of-run robustness sweep and render use it); needs periodic evaluations."""
     robustness_seeds: int = 10
     """Seeds per setting of the robustness sweep run at the end (0 = skip it)."""
+    planned_references: bool = True
+    """The end-of-run report (and ``score-eval``) also evaluates the references the environment
+    finds by planning on its own simulator (greenhouse: the best constant schedule and the best
+    open-loop schedule for the run's decision interval; a search of about a minute on a CPU the
+    first time per environment and code version, then read from ~/.cache/score-jax)."""
     render: bool = False
     """Spider only: render an episode of the trained policy to <run-dir>/render (PNG + GIF)."""
     render_steps: int = 300

@@ -122,12 +122,19 @@ def scripted_act_fn(reference: ReferencePolicy, agent_index, width: int) -> ActF
     return lambda state, key: pad_width(jax.vmap(reference)(state)[:, idx], width)
 
 
-def reference_policies(env: CompositeEnv, agent_index, width: int) -> dict[str, ActFn]:
-    """``random``, ``default`` and the environment's scripted policies (e.g. ``expert``)."""
+def reference_policies(
+    env: CompositeEnv, agent_index, width: int, planned: bool = False
+) -> dict[str, ActFn]:
+    """``random``, ``default`` and the environment's scripted policies (e.g. ``expert``); with
+    ``planned`` also those it finds by planning (``env.planned_references``, e.g. the
+    greenhouse's best constant and open-loop schedules for the decisions ``env`` takes)."""
     refs = {
         "random": random_act_fn(env.space, agent_index, width),
         "default": default_act_fn(env.space, agent_index, width),
     }
-    for name, reference in env.reference_policies().items():
+    scripted = dict(env.reference_policies())
+    if planned:
+        scripted.update(env.planned_references())
+    for name, reference in scripted.items():
         refs[name] = scripted_act_fn(reference, agent_index, width)
     return refs

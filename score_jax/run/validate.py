@@ -56,7 +56,9 @@ NON_NEGATIVE = frozenset(
     | {"discrete_entropy_scale", "head_init_scale"}
 )
 # Options of the end-of-run report: a resumed run may change them.
-REPORT_OPTIONS = frozenset({"quiet", "render", "render_steps", "robustness_seeds"})
+REPORT_OPTIONS = frozenset(
+    {"quiet", "render", "render_steps", "robustness_seeds", "planned_references"}
+)
 
 
 class UsageError(ValueError):
