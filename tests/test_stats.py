@@ -173,3 +173,27 @@ def test_learned_returns_are_given_as_a_share_of_a_positive_open_loop_reference(
     loss = {"score": {"mean": -3.0}, "open-loop": {"mean": -1.0}}
     assert "share_of_open_loop" not in add_shares(loss, ["score"])["score"]
     assert "share_of_open_loop" not in add_shares({"score": {"mean": 1.0}}, ["score"])["score"]
+
+
+def test_stability_finds_the_lowest_moving_mean_after_the_curve_first_beats_a_threshold(tmp_path):
+    """Seed 0 climbs past 10, collapses to 2 and recovers; seed 1 climbs and holds; seed 2
+    never gets there (40 rows each: the moving mean is 2 rows wide)."""
+    from score_jax.evaluation.stability import format_stability, lowest_after_exceeding
+
+    curves = {
+        0: [0.0] * 10 + [20.0] * 10 + [2.0] * 4 + [20.0] * 16,
+        1: [0.0] * 10 + [20.0] * 30,
+        2: [5.0] * 40,
+    }
+    path = tmp_path / "metrics.csv"
+    lines = ["env_steps,seed,episode_return,eval_return"]
+    for step in range(40):
+        lines += [f"{100 * (step + 1)},{seed},{c[step]},nan" for seed, c in curves.items()]
+    path.write_text("\n".join(lines) + "\n")
+    s = lowest_after_exceeding(str(path), 10.0)
+    assert s[0]["first_above"] == 1200 and s[0]["lowest_after"] == 2.0 and not s[0]["held"]
+    assert s[0]["lowest_at"] == 2200  # the first window wholly inside the dip ends there
+    assert s[1]["lowest_after"] == pytest.approx(20.0) and s[1]["held"]
+    assert s[2]["first_above"] is None and not s[2]["held"]
+    text = format_stability(s, 10.0, "the default policy")
+    assert "seed 0" in text and "fell below it" in text and "seed 2: never above" in text

@@ -9,6 +9,7 @@ import jax
 import numpy as np
 
 from score_jax.core.spaces import agents_to_env_action
+from score_jax.evaluation.stability import format_stability, lowest_after_exceeding
 from score_jax.evaluation.stats import aggregate, format_interval
 from score_jax.run.best_policy import has_best, restore_best
 from score_jax.run.build import with_best_policy
@@ -28,8 +29,11 @@ def final_evaluation(
     and median with 95% stratified-bootstrap intervals (``evaluation.stats``). The references
     are evaluated once, on the first seed's episodes. ``learned``: ``{label: seed-stacked agent
     state}`` to evaluate instead of the last and best policies; ``path``: where the JSON goes.
+    At the end of a run (no ``learned``) it also reports each seed's training stability against
+    the default policy (``evaluation.stability``; ``evaluation.json["stability"]``).
     """
     keys = run.eval_keys(20_000)
+    end_of_run = learned is None
     if learned is None:
         learned = {run.config.algo: run.state.agent}
         if has_best(run.run_dir):
@@ -55,11 +59,24 @@ def final_evaluation(
         rows[name] = _stats(np.asarray(jax.jit(episodes)(key).returns))
     add_shares(rows, list(learned))
     log(_table(rows, n_episodes, run.num_seeds))
-    dump_json(
-        path or os.path.join(run.run_dir, "evaluation.json"),
-        {"episodes": n_episodes, "seeds": list(run.seeds), "returns": rows},
-    )
+    out = {"episodes": n_episodes, "seeds": list(run.seeds), "returns": rows}
+    if end_of_run and (stability := _stability(run, rows)) is not None:
+        log(format_stability(stability, rows["default"]["mean"], "the default policy"))
+        out["stability"] = {str(seed): s for seed, s in stability.items()}
+    dump_json(path or os.path.join(run.run_dir, "evaluation.json"), out)
     return rows
+
+
+def _stability(run, rows: dict) -> dict | None:
+    """Per seed, the lowest moving-mean training return after it first beat the default policy
+    (``evaluation.stability``), when the run logged training returns."""
+    metrics = os.path.join(run.run_dir, "metrics.csv")
+    if "default" not in rows or not os.path.exists(metrics):
+        return None
+    with open(metrics) as f:
+        if "episode_return" not in f.readline().strip().split(","):
+            return None
+    return lowest_after_exceeding(metrics, rows["default"]["mean"])
 
 
 # The upper reference a learned return is also given as a share of (the greenhouse's best
