@@ -197,3 +197,24 @@ def test_stability_finds_the_lowest_moving_mean_after_the_curve_first_beats_a_th
     assert s[2]["first_above"] is None and not s[2]["held"]
     text = format_stability(s, 10.0, "the default policy")
     assert "seed 0" in text and "fell below it" in text and "seed 2: never above" in text
+
+
+def test_learning_curve_draws_the_reference_returns(tmp_path, monkeypatch):
+    import matplotlib.axes
+
+    from score_jax.evaluation.curves import plot_learning_curve
+
+    path = tmp_path / "metrics.csv"
+    rows = [f"{100 * i},{s},{i + s},nan" for i in range(1, 30) for s in range(2)]
+    path.write_text("env_steps,seed,episode_return,eval_return\n" + "\n".join(rows) + "\n")
+    drawn = []
+    original = matplotlib.axes.Axes.axhline
+    monkeypatch.setattr(
+        matplotlib.axes.Axes,
+        "axhline",
+        lambda self, y, **kw: drawn.append((y, kw["label"])) or original(self, y, **kw),
+    )
+    png = tmp_path / "curve.png"
+    plot_learning_curve(str(path), str(png), "t", references={"default": 8.0, "open-loop": 30.5})
+    assert drawn == [(8.0, "default (8.0)"), (30.5, "open-loop (30.5)")]
+    assert png.stat().st_size > 10_000

@@ -18,7 +18,7 @@ import tyro
 
 from score_jax import registry
 from score_jax.cli.errors import guarded
-from score_jax.evaluation.curves import plot_learning_curve
+from score_jax.evaluation.curves import REFERENCE_LINES, plot_learning_curve
 from score_jax.evaluation.report import final_evaluation, render_policy
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import with_best_policy
@@ -59,12 +59,15 @@ def _train_and_report(cfg: TrainConfig) -> None:
         return
     run = train(cfg)
     print(f"\nrun directory: {run.run_dir}")
+    rows = final_evaluation(run, run.config.eval_episodes)
     curve = os.path.join(run.run_dir, "learning_curve.png")
     plot_learning_curve(
-        os.path.join(run.run_dir, "metrics.csv"), curve, f"{run.config.algo} on {run.config.env}"
+        os.path.join(run.run_dir, "metrics.csv"),
+        curve,
+        f"{run.config.algo} on {run.config.env}",
+        references={name: rows[name]["mean"] for name in REFERENCE_LINES if name in rows},
     )
     print(f"learning curve: {curve}")
-    final_evaluation(run, run.config.eval_episodes)
     run = with_best_policy(run)  # the sweep and the render show the best-evaluated policy, if kept
     if run.config.robustness_seeds:
         run_sweep(run, run.config.robustness_seeds)

@@ -70,9 +70,16 @@ def _band(ax, curves, label: str, colour, marker: str = "-") -> None:
     ax.fill_between(grid, lo, hi, color=colour, alpha=0.2, lw=0, label="95% interval over seeds")
 
 
-def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:
+# Reference policies drawn as horizontal lines on a learning curve, when the report has them.
+REFERENCE_LINES = ("random", "default", "expert", "best constant", "open-loop")
+
+
+def plot_learning_curve(
+    csv_path: str, png_path: str, title: str = "", references: dict | None = None
+) -> None:
     """Training episodes' moving mean and deterministic evaluations against decisions: every seed
-    faint, the mean over seeds with its 95% interval."""
+    faint, the mean over seeds with its 95% interval; ``references`` (``{name: return}``, e.g.
+    the end-of-run report's default, expert and planned references) as dashed lines."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -86,6 +93,9 @@ def plot_learning_curve(csv_path: str, png_path: str, title: str = "") -> None:
     evals = seed_curves(rows, "eval_return", smooth=False)
     if evals:
         _band(ax, evals, "evaluation (deterministic)", "tab:green", "o-")
+    greys = plt.cm.Greys(np.linspace(0.35, 0.9, max(1, len(references or {}))))
+    for colour, (name, value) in zip(greys, (references or {}).items(), strict=False):
+        ax.axhline(value, ls="--", lw=1, color=colour, label=f"{name} ({value:.1f})")
     _save(fig, ax, png_path, title, "episode return")
 
 
