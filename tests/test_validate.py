@@ -80,6 +80,8 @@ BAD_TRAIN_INPUTS = [
     (["--seed", "-1"], "--seed -1: must be in 0.."),
     (["--algo", "sac", "--single.sac.min-replay-size", "5000"], "min-replay-size 5000"),
     (["--algo", "ppo", "--single.num-envs", "3"], "must be a multiple of --single.num-envs 3"),
+    (["--num-processes", "2"], "--num-processes needs --distributed"),
+    (["--distributed", "--num-processes", "2", "--process-id", "2"], "process id must be 0 .. 1"),
 ]
 
 

@@ -1,8 +1,10 @@
 """End-of-run report: the learned policies (every seed) against the reference policies, and
-the rendering of a trained Spider."""
+the rendering of a trained Spider. In a distributed run every process evaluates (the seeds'
+episodes run where the seeds are) and process 0 prints and writes."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import jax
@@ -11,6 +13,7 @@ import numpy as np
 from score_jax.core.spaces import agents_to_env_action
 from score_jax.evaluation.stability import format_stability, lowest_after_exceeding
 from score_jax.evaluation.stats import aggregate, format_interval
+from score_jax.run import distributed
 from score_jax.run.best_policy import has_best, restore_best
 from score_jax.run.build import with_best_policy
 from score_jax.run.checkpoint import dump_json
@@ -32,6 +35,7 @@ def final_evaluation(
     At the end of a run (no ``learned``) it also reports each seed's training stability against
     the default policy (``evaluation.stability``; ``evaluation.json["stability"]``).
     """
+    log = distributed.primary_only(log)
     keys = run.eval_keys(20_000)
     end_of_run = learned is None
     if learned is None:
@@ -44,7 +48,8 @@ def final_evaluation(
             learned[f"{run.config.algo} (best, {label})"] = best
     rows = {}
     for name, agent in learned.items():  # one compiled evaluator, the parameters an argument
-        r = np.asarray(run.evaluate(agent, n_episodes, key=keys).returns).reshape(run.num_seeds, -1)
+        returns = distributed.to_host(run.evaluate(agent, n_episodes, key=keys).returns)
+        r = returns.reshape(run.num_seeds, -1)
         rows[name] = {**_stats(r), "per_seed": r.mean(axis=1).tolist(), "seeds": list(run.seeds)}
         if run.num_seeds > 1:
             agg = aggregate({name: r.mean(axis=1)}, reps=10_000, seed=run.config.seed)[name]
@@ -63,7 +68,8 @@ def final_evaluation(
     if end_of_run and (stability := _stability(run, rows)) is not None:
         log(format_stability(stability, rows["default"]["mean"], "the default policy"))
         out["stability"] = {str(seed): s for seed, s in stability.items()}
-    dump_json(path or os.path.join(run.run_dir, "evaluation.json"), out)
+    if distributed.is_primary():
+        dump_json(path or os.path.join(run.run_dir, "evaluation.json"), out)
     return rows
 
 
@@ -134,6 +140,10 @@ def render_policy(
     # deferred: imports MuJoCo's renderer
     from envs.spider.render import mp4_unavailable_reason, render_rollout
 
+    if distributed.multiprocess():  # process 0 renders from a host copy of the state
+        run = dataclasses.replace(run, state=distributed.to_host(run.state))
+        if not distributed.is_primary():
+            return {}
     if run.batched:  # the first seed's policy
         run = run.for_seed(0)
     env, act = run.env, run.algo.policy(run.state.agent)

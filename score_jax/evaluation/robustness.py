@@ -21,6 +21,7 @@ from flax import struct
 
 from score_jax.agents.base import ActFn
 from score_jax.core.failures import FailureMode
+from score_jax.run import distributed
 from score_jax.run.checkpoint import dump_json
 from score_jax.run.episodes import evaluate
 from score_jax.run.sharding import make_data_mesh
@@ -171,9 +172,13 @@ def plot_sweep(table: SweepTable, path: str, title: str = "") -> None:
 
 def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
     """Sweep every seed of a trained run (see ``run.build.restore_run``) in one call; write JSON
-    (pooled table, and each trained seed's mean per cell) + PNG into its directory."""
+    (pooled table, and each trained seed's mean per cell) + PNG into its directory. Distributed:
+    every process sweeps its own seeds (the settings are not spread then); process 0 writes."""
+    log = distributed.primary_only(log)
     n = len(run.agent_index)
-    settings = shard_settings(settings_grid(n, n_seeds))
+    settings = settings_grid(n, n_seeds)
+    if not distributed.multiprocess():
+        settings = shard_settings(settings)
     # The agent's state is an argument, not a constant of the program: XLA would otherwise
     # constant-fold the networks into the executable (slow compiles, one per policy).
     one = lambda agent, settings, key: make_sweep(run.env, run.algo.policy(agent), run.agent_index)(
@@ -181,12 +186,14 @@ def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
     )
     sweep = jax.jit(jax.vmap(one, in_axes=(0, None, 0)) if run.batched else one)
     t0 = time.time()
-    returns = np.asarray(
+    returns = distributed.to_host(
         jax.block_until_ready(sweep(run.state.agent, settings, run.eval_keys(30_000)))
     )
     seconds = time.time() - t0
     table = tabulate(returns, settings, n, n_seeds)
     per_seed = returns.reshape(-1, n, len(MODES), n_seeds * returns.shape[-1]).mean(-1)
+    if not distributed.is_primary():
+        return table
     dump_json(
         os.path.join(run.run_dir, "robustness.json"),
         {

@@ -7,6 +7,7 @@ the season). Like stable-baselines' ``EvalCallback(best_model_save_path=...)``,
 the run saves the agent state whenever a periodic deterministic evaluation beats every earlier
 one; the final report shows both the last and the best policy, and ``restore_run(...,
 policy="best")`` loads it. Resuming a run keeps the best found before the interruption.
+In a distributed run every process keeps the same bests; process 0 writes them.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from score_jax.run import distributed
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, checkpoint_dir
 
 BEST = "best"
@@ -35,9 +37,10 @@ class BestPolicy:
     """
 
     def __init__(self, run_dir: str, fresh: bool, num_seeds: int = 1, log=print):
-        if fresh and os.path.isdir(checkpoint_dir(run_dir, BEST)):  # a new run never inherits
+        writes = distributed.is_primary()
+        if fresh and writes and os.path.isdir(checkpoint_dir(run_dir, BEST)):  # never inherited
             shutil.rmtree(checkpoint_dir(run_dir, BEST))
-        self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
+        self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)  # (distributed: waits for 0)
         self.steps: list[int | None] = [None] * num_seeds
         self.returns = np.full(num_seeds, -np.inf)
         self._agent: Any = None
@@ -48,9 +51,10 @@ class BestPolicy:
             except CheckpointError as e:  # a damaged best policy never stops the run
                 log(f"warning: {e}; the run keeps a new best policy from here on")
                 self.ckpt.close()
-                shutil.move(
-                    self.ckpt.directory, f"{self.ckpt.directory}.unusable-{time.time():.0f}"
-                )
+                if writes:
+                    shutil.move(
+                        self.ckpt.directory, f"{self.ckpt.directory}.unusable-{time.time():.0f}"
+                    )
                 self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
                 self._saved = False
             else:
@@ -84,17 +88,19 @@ class BestPolicy:
 
 
 def has_best(run_dir: str) -> bool:
-    path = checkpoint_dir(run_dir, BEST)
-    return (
-        os.path.isdir(path)
-        and Checkpointer(run_dir, max_to_keep=1, name=BEST).latest_step() is not None
-    )
+    if not os.path.isdir(checkpoint_dir(run_dir, BEST)):
+        return False
+    ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST, create=False)  # reads only
+    try:
+        return ckpt.latest_step() is not None
+    finally:
+        ckpt.close()
 
 
 def restore_best(run_dir: str, template_agent: Any) -> tuple[Any, dict]:
     """``(agent_state, meta)`` of the best policies (seed-stacked; ``meta["best_steps"]``,
     ``meta["best_returns"]`` per seed)."""
-    ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
+    ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST, create=False)  # reads only
     try:
         return ckpt.restore(template_agent)
     finally:

@@ -12,6 +12,12 @@ committed, so a run killed mid-save keeps its previous checkpoint intact; a save
 one. Reading never creates anything (``Checkpointer(..., create=False)``), and
 ``restore_usable`` takes the newest step that restores and passes its checks, naming the
 skipped ones in one warning line.
+
+In a distributed run (``run.distributed``) only process 0 writes: a save gathers the state to
+numpy on every process and process 0 saves it (orbax with ``active_processes={0}``), then tells
+the others whether it succeeded; a restore reads the numpy arrays on every process, which puts
+its own shards of them on its devices with the template's shardings. The run directory must be
+on a filesystem every process shares.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from score_jax.core.spaces import CompositeSpace
+from score_jax.run import distributed
 
 FORMAT_VERSION = 2  # 2: EnvState.info (AutoReset keeps the final observation there)
 
@@ -39,9 +46,7 @@ class CheckpointError(RuntimeError):
 def _fill_empty(tree: Any) -> Any:
     """Orbax cannot write zero-size arrays (MJX data has some): store a 1-element stand-in;
     ``restore`` puts the template's empty array back."""
-    return jax.tree.map(
-        lambda x: np.zeros((1,), np.asarray(x).dtype) if np.size(x) == 0 else x, tree
-    )
+    return jax.tree.map(lambda x: np.zeros((1,), np.dtype(x.dtype)) if np.size(x) == 0 else x, tree)
 
 
 def checkpoint_dir(run_dir: str, name: str = "checkpoints") -> str:
@@ -58,55 +63,92 @@ class Checkpointer:
     (``checkpoints``: the training state; ``best``: the best-evaluated agent state).
 
     ``create=False`` opens it for reading only: nothing is created, and a missing directory is a
-    ``CheckpointError`` ("no run in ...")."""
+    ``CheckpointError`` ("no run in ...").
+
+    In a distributed run every process opens it (at the same point: with ``create`` they wait
+    for process 0 to have created the directory), each with an orbax manager of its own process
+    only; ``writes`` is True on process 0 alone."""
 
     def __init__(
         self, run_dir: str, max_to_keep: int = 3, name: str = "checkpoints", create: bool = True
     ):
         self.directory = checkpoint_dir(run_dir, name)
+        self.shared = distributed.multiprocess()
+        self.writes = not self.shared or distributed.is_primary()
         if not create and not os.path.isdir(self.directory):
             what = "no run" if name == "checkpoints" else f"no {name} checkpoint"
             raise CheckpointError(f"{what} in {run_dir} (no {self.directory})")
-        if create:
+        if create and self.writes:
             os.makedirs(self.directory, exist_ok=True)
+        options = dict(max_to_keep=max_to_keep, create=create, cleanup_tmp_directories=create)
+        if self.shared:
+            if create:
+                distributed.barrier(f"created {self.directory}")
+                if not distributed.all_true(os.path.isdir(self.directory)):
+                    raise CheckpointError(
+                        f"{self.directory}, created by process 0, is not visible to every "
+                        "process: a --distributed run needs its run directory on a filesystem "
+                        "all processes share"
+                    )
+            me = jax.process_index()  # orbax syncs nothing when a manager is one process's
+            options.update(
+                create=False,
+                cleanup_tmp_directories=create and self.writes,
+                multiprocessing_options=ocp.options.MultiprocessingOptions(
+                    primary_host=me, active_processes={me}
+                ),
+            )
         self.manager = ocp.CheckpointManager(
-            self.directory,
-            options=ocp.CheckpointManagerOptions(
-                max_to_keep=max_to_keep, create=create, cleanup_tmp_directories=create
-            ),
+            self.directory, options=ocp.CheckpointManagerOptions(**options)
         )
 
     def save(self, step: int, state: Any, meta: dict) -> None:
         """Save and wait until committed; a failure (full disk, read-only directory, ...) is a
-        ``CheckpointError`` naming the previous checkpoint, which stays usable."""
+        ``CheckpointError`` naming the previous checkpoint, which stays usable. Distributed:
+        every process calls it (the state is gathered), process 0 saves, and a failed save is
+        a ``CheckpointError`` on every process."""
         meta = {**meta, "format_version": FORMAT_VERSION, "step": int(step)}
+        if self.shared:
+            state = distributed.to_host(state)
         state = _fill_empty(state)
-        try:
-            self.manager.save(
-                int(step),
-                args=ocp.args.Composite(
-                    state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)
-                ),
-                force=True,
-            )
-            self.manager.wait_until_finished()
-        except Exception as e:  # orbax passes OSError through or wraps it
-            previous = [s for s in self.all_steps() if s != int(step)]
-            kept = (
-                f"the previous checkpoint (step {previous[-1]}) is kept"
-                if previous
-                else "there is no earlier checkpoint"
-            )
-            raise CheckpointError(
-                f"could not save the checkpoint of step {step} in {self.directory} "
-                f"({type(e).__name__}: {_one_line(e)}); {kept}"
-            ) from e
+        error = None
+        if self.writes:
+            try:
+                self.manager.save(
+                    int(step),
+                    args=ocp.args.Composite(
+                        state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)
+                    ),
+                    force=True,
+                )
+                self.manager.wait_until_finished()
+            except Exception as e:  # orbax passes OSError through or wraps it
+                error = e
+        failed = distributed.broadcast(int(error is not None)) if self.shared else error is not None
+        if not failed:
+            return
+        previous = [s for s in self.all_steps() if s != int(step)]
+        kept = (
+            f"the previous checkpoint (step {previous[-1]}) is kept"
+            if previous
+            else "there is no earlier checkpoint"
+        )
+        why = "process 0 failed" if error is None else f"{type(error).__name__}: {_one_line(error)}"
+        raise CheckpointError(
+            f"could not save the checkpoint of step {step} in {self.directory} ({why}); {kept}"
+        ) from error
+
+    def _refresh(self) -> None:
+        if not self.writes:  # process 0 saves: see its steps
+            self.manager.reload()
 
     def latest_step(self) -> int | None:
+        self._refresh()
         return self.manager.latest_step()
 
     def all_steps(self) -> list[int]:
         """The committed steps, oldest first."""
+        self._refresh()
         return sorted(int(s) for s in self.manager.all_steps())
 
     def read_meta(self, step: int | None = None) -> dict:
@@ -128,10 +170,14 @@ class Checkpointer:
         return meta
 
     def restore(self, template: Any, step: int | None = None) -> tuple[Any, dict]:
-        """Restore into the structure, shapes and dtypes of ``template`` (a state built fresh)."""
+        """Restore into the structure, shapes and dtypes of ``template`` (a state built fresh).
+        Distributed: every process reads the arrays and places its shards of them with the
+        template's shardings."""
         step = self._step(step)
         meta = self.read_meta(step)
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _fill_empty(template))
+        if self.shared:  # read into numpy (no devices of other processes involved)
+            abstract = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), abstract)
         try:
             restored = self.manager.restore(
                 step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
@@ -142,7 +188,14 @@ class Checkpointer:
                 f"training state ({type(e).__name__}: {str(e)[:300]}); it is corrupted or was "
                 "written by a different configuration"
             ) from e
-        state = jax.tree.map(lambda t, r: t if np.size(t) == 0 else r, template, restored.state)
+        state = restored.state
+        if self.shared:
+            state = jax.tree.map(
+                lambda t, r: distributed.place(r, t.sharding) if isinstance(t, jax.Array) else r,
+                template,
+                state,
+            )
+        state = jax.tree.map(lambda t, r: t if np.size(t) == 0 else r, template, state)
         return state, meta
 
     def restore_usable(
@@ -192,13 +245,16 @@ class Checkpointer:
     def _set_aside(self, steps: list[int]) -> None:
         if not steps:
             return
-        aside = self.directory + ".unusable"
-        os.makedirs(aside, exist_ok=True)
-        for step in steps:
-            shutil.move(
-                os.path.join(self.directory, str(step)),
-                os.path.join(aside, f"{step}-{time.strftime('%Y%m%d-%H%M%S')}"),
-            )
+        if self.writes:
+            aside = self.directory + ".unusable"
+            os.makedirs(aside, exist_ok=True)
+            for step in steps:
+                shutil.move(
+                    os.path.join(self.directory, str(step)),
+                    os.path.join(aside, f"{step}-{time.strftime('%Y%m%d-%H%M%S')}"),
+                )
+        if self.shared:
+            distributed.barrier(f"set aside {self.directory} {steps}")
         self.manager.reload()
 
     def _step(self, step: int | None) -> int:

@@ -117,6 +117,21 @@ class TrainConfig:
     ``--xla_force_host_platform_device_count`` before JAX starts); None = for a run of several
     seeds, one per core when the seeds divide evenly over them (XLA runs a program on about one
     core), else 1. Ignored when XLA_FLAGS already sets a device count."""
+    distributed: bool = False
+    """Train over several processes (hosts): each one runs this same command and they join
+    through ``jax.distributed.initialize`` before JAX starts (CPU: gloo collectives). The seeds
+    are sharded over the devices of every process (``--num-seeds`` must be a multiple of their
+    count); only process 0 writes files and prints. The run directory must be on a filesystem
+    every process sees."""
+    coordinator_address: str | None = None
+    """With ``--distributed``: HOST:PORT of process 0, where the processes meet; None =
+    $JAX_COORDINATOR_ADDRESS, else what jax detects (Slurm, Open MPI, Kubernetes, Cloud TPU)."""
+    num_processes: int | None = None
+    """With ``--distributed``: how many processes take part; None = $JAX_NUM_PROCESSES, else
+    what jax detects."""
+    process_id: int | None = None
+    """With ``--distributed``: this process's index, 0 .. num_processes - 1 (0 writes the run's
+    files); None = $JAX_PROCESS_ID, else what jax detects."""
     track: tuple[Literal["csv", "tensorboard", "wandb"], ...] = ("csv",)
     """Metric writers, several allowed; csv (<run-dir>/metrics.csv) is always on. tensorboard:
     event files in <run-dir>/tensorboard; wandb: a Weights & Biases run in <run-dir>/wandb

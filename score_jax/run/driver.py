@@ -9,6 +9,10 @@ small metrics struct to the host per epoch. Reliability:
 Algorithms that train inside brax (``Algorithm.train_external``: sac, ppo, hppo) are handed
 to ``run.external.fit_external``, which checkpoints their final policy and refuses ``--resume``.
 Both loops record their rows through one ``RunRecorder``.
+
+Distributed (``--distributed``): every process runs this same loop on its shards of the seeds;
+whatever the loop reads on the host goes through ``run.distributed.to_host`` (one gather per
+epoch), and only process 0 writes files and prints.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
+from score_jax.run import distributed
 from score_jax.run.build import Run, build, seed_keys
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, dump_json
 from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, to_dict
@@ -27,7 +32,6 @@ from score_jax.run.external import RESUME_ERROR, fit_external
 from score_jax.run.provenance import provenance
 from score_jax.run.recorder import NonFiniteError, RunRecorder
 from score_jax.run.summary import announce, resolved_config, tracking_kinds
-from score_jax.run.trainer import TrainState
 from score_jax.run.validate import prepare_train
 
 __all__ = ["NonFiniteError", "Run", "train"]
@@ -36,9 +40,9 @@ __all__ = ["NonFiniteError", "Run", "train"]
 BASE_COLUMNS = ("updates", "wall_s", "episode_return", "reward_mean", "eval_return")
 
 
-def _epoch_rows(state: TrainState, metrics) -> list[dict]:
-    """One metrics row per seed from a seed-stacked state and epoch metrics."""
-    m, updates = jax.device_get((metrics, state.updates))
+def _epoch_rows(m, updates) -> list[dict]:
+    """One metrics row per seed from an epoch's metrics and update counts (seed-stacked, on the
+    host)."""
     rows = []
     for k in range(len(updates)):
         done = float(m.completed_episodes[k])
@@ -78,17 +82,20 @@ def train(
     ``transfer`` saying which sub-spaces are new); ``on_epoch(run, row)`` is called after every
     metrics row (one per seed, with its ``seed``).
     """
+    log = distributed.primary_only(log)  # distributed: process 0 speaks for the run
     # every check that needs no computation, before any (run.validate); a --resume takes the
     # saved configuration, --total-steps extending it (``record`` goes to config.json)
     cfg, transfer, record = prepare_train(cfg, transfer, log=log)
     run_dir = default_run_dir(cfg)
     announce(cfg, run_dir, log)  # the header, before any heavy set-up
-    os.makedirs(run_dir, exist_ok=True)
+    writes = distributed.is_primary()
+    if writes:
+        os.makedirs(run_dir, exist_ok=True)
 
     restoring = bool(cfg.resume) or initial_agent is not None
     run = build(cfg, None, run_dir, restoring=restoring, log=log, transfer=transfer)
     keys_train = seed_keys(run.seeds)[1]
-    ckpt = Checkpointer(run_dir)
+    ckpt = Checkpointer(run_dir)  # (distributed: every process waits for process 0's mkdir)
     external = run.algo.train_external is not None
     if cfg.resume and external:
         raise CheckpointError(RESUME_ERROR.format(algo=cfg.algo, run_dir=run_dir))
@@ -97,7 +104,7 @@ def train(
             f"{run_dir} already holds a run; pass --resume {run_dir} to continue it or choose "
             "another --run-dir"
         )
-    if not cfg.resume or record is not None:
+    if writes and (not cfg.resume or record is not None):
         dump_json(
             os.path.join(run_dir, "config.json"),
             {
@@ -121,9 +128,10 @@ def train(
         check = checks_for(to_dict(cfg), run.env.space)
         state, _ = ckpt.restore_usable(state, check, log=log, set_aside=True)
         state = run.trainer.place(state)
-        log(f"resumed {run_dir} at env step {int(np.max(state.env_steps))}")
+    resume_from = int(np.max(distributed.to_host(state.env_steps))) if cfg.resume else None
+    if cfg.resume:
+        log(f"resumed {run_dir} at env step {resume_from}")
     run.state = state
-    resume_from = int(np.max(state.env_steps)) if cfg.resume else None
     recorder = _recorder(run, resume_from, log, on_epoch)
     return _fit_off_policy(run, recorder, ckpt)
 
@@ -159,13 +167,16 @@ def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
     state = run.state
     meta = run.meta()
     spe, eval_every = spec.steps_per_epoch, spec.eval_every
-    steps = int(np.max(state.env_steps))
+    alive, env_steps = distributed.to_host((state.alive, state.env_steps))
+    steps = int(np.max(env_steps))
     last_ckpt = steps
     hyper = run.algo.off_policy.hyper
-    alive = np.asarray(state.alive)
     while steps < spec.total_steps:
         state, metrics = run.trainer.epoch(state, hyper)
-        now_alive = np.asarray(state.alive)
+        # everything the host reads of this epoch, in one transfer (distributed: one gather)
+        now_alive, env_steps, updates, host_metrics = distributed.to_host(
+            (state.alive, state.env_steps, state.updates, metrics)
+        )
         for k in np.flatnonzero(alive & ~now_alive):
             recorder.progress.write(
                 f"seed {run.seeds[k]}: non-finite loss or parameter at env step {steps + spe}; "
@@ -181,10 +192,12 @@ def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
                 f"non-finite loss or parameter at env step {steps + spe} in {which}; stopped. "
                 f"The last good checkpoint (env step {last_ckpt}) is kept in {ckpt.directory}."
             )
-        steps = int(np.max(state.env_steps))
-        rows = _epoch_rows(state, metrics)
+        steps = int(np.max(env_steps))
+        rows = _epoch_rows(host_metrics, updates)
         if eval_every and steps // eval_every != (steps - spe) // eval_every:
-            returns = np.asarray(run.evaluate(state.agent, n_episodes=cfg.eval_episodes).returns)
+            returns = distributed.to_host(
+                run.evaluate(state.agent, n_episodes=cfg.eval_episodes).returns
+            )
             for k, row in enumerate(rows):
                 row["eval_return"] = float(np.mean(returns[k]))
         run.state = state

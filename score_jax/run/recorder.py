@@ -1,5 +1,7 @@
 """What every run records, whichever loop trains it: the metrics rows (``metrics.csv`` through
-the metric writers), a progress bar, and the best-evaluated policy."""
+the metric writers), a progress bar, and the best-evaluated policy. In a distributed run only
+process 0 writes rows and shows the bar; every process keeps the best policies (process 0
+saves them)."""
 
 from __future__ import annotations
 
@@ -12,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from score_jax.run import distributed
 from score_jax.run.best_policy import BestPolicy
-from score_jax.run.writers import make_writers, truncate_csv
+from score_jax.run.writers import NullWriter, make_writers, truncate_csv
 
 METRICS_CSV = "metrics.csv"
 
@@ -25,8 +28,9 @@ class NonFiniteError(RuntimeError):
 class Progress:
     """tqdm progress over decisions with the recent episode return; silent when quiet."""
 
-    def __init__(self, total: int, start: int, quiet: bool):
-        self.bar = None
+    def __init__(self, total: int, start: int, quiet: bool, silent: bool = False):
+        self.bar, self.silent = None, silent  # silent: nothing at all (distributed, not 0)
+        quiet = quiet or silent
         if not quiet:
             from tqdm.auto import tqdm  # deferred: tqdm.auto probes for notebooks on import
 
@@ -49,7 +53,7 @@ class Progress:
         """A line above the bar (or through ``log`` when quiet)."""
         if self.bar is not None:
             self.bar.write(message, file=sys.stderr)
-        else:
+        elif not self.silent:
             log(message)
 
     def close(self):
@@ -89,24 +93,29 @@ class RunRecorder:
         wandb_config: dict | None = None,
     ):
         path = os.path.join(run_dir, METRICS_CSV)
-        if resume_from is None:
+        writes = distributed.is_primary()  # distributed: only process 0 writes
+        if writes and resume_from is None:
             if os.path.exists(path):
                 os.remove(path)
-        else:
+        elif writes:
             truncate_csv(path, resume_from)
         self.columns, self.seeds = list(columns), tuple(seeds)
-        self.writer = make_writers(
-            track,
-            run_dir,
-            csv_name=METRICS_CSV,
-            csv_columns=self.columns,
-            project=wandb_project,
-            config=wandb_config,
-            wandb_mode=wandb_mode,
-            name=os.path.basename(os.path.abspath(run_dir)),
+        self.writer = NullWriter()
+        if writes:
+            self.writer = make_writers(
+                track,
+                run_dir,
+                csv_name=METRICS_CSV,
+                csv_columns=self.columns,
+                project=wandb_project,
+                config=wandb_config,
+                wandb_mode=wandb_mode,
+                name=os.path.basename(os.path.abspath(run_dir)),
+            )
+        self.progress = Progress(total, resume_from or 0, quiet, silent=not writes)
+        self.best = (
+            BestPolicy(run_dir, resume_from is None, len(self.seeds), log) if keep_best else None
         )
-        self.progress = Progress(total, resume_from or 0, quiet)
-        self.best = BestPolicy(run_dir, resume_from is None, len(self.seeds)) if keep_best else None
         self.meta, self.log, self.on_row = meta, log, on_row
         self.t0 = time.time()
         self.done = resume_from or 0

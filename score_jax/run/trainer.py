@@ -33,6 +33,7 @@ from score_jax.agents.replay import ReplayBuffer, Transition, replay_add, replay
 from score_jax.core.failures import fail_batch
 from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
 from score_jax.run.config import OffPolicyConfig
+from score_jax.run.distributed import place
 
 
 @struct.dataclass
@@ -151,7 +152,7 @@ class Trainer:
         if self.mesh is None:
             return state
         data, replicated = NamedSharding(self.mesh, P("data")), NamedSharding(self.mesh, P())
-        put = lambda tree, sharding: jax.tree.map(lambda x: jax.device_put(x, sharding), tree)
+        put = lambda tree, sharding: jax.tree.map(lambda x: place(x, sharding), tree)
         return state.replace(
             agent=put(state.agent, replicated),
             buffer=put(state.buffer, replicated),
@@ -301,7 +302,9 @@ class SeedTrainer:
 
     Data parallelism (``mesh``): when K is a multiple of the device count the seed axis is
     sharded (whole runs per device: no communication at all); otherwise the inner ``Trainer``
-    shards each seed's environments and batches (it was built with the mesh).
+    shards each seed's environments and batches (it was built with the mesh). In a distributed
+    run the mesh holds every process's devices, the seeds are sharded over all of them and
+    ``place`` makes global arrays (``run.distributed.place``).
     """
 
     def __init__(self, trainer: Trainer, num_seeds: int, mesh: Mesh | None = None):
@@ -326,12 +329,12 @@ class SeedTrainer:
     def place(self, state: TrainState) -> TrainState:
         if self.mesh is not None:
             sharding = NamedSharding(self.mesh, P("data"))
-            return jax.tree.map(lambda x: jax.device_put(x, sharding), state)
+            return jax.tree.map(lambda x: place(x, sharding), state)
         if self.single.mesh is None:
             return state
         data = NamedSharding(self.single.mesh, P(None, "data"))
         replicated = NamedSharding(self.single.mesh, P())
-        put = lambda tree, sharding: jax.tree.map(lambda x: jax.device_put(x, sharding), tree)
+        put = lambda tree, sharding: jax.tree.map(lambda x: place(x, sharding), tree)
         per_env = ("env_state", "episode_return", "last_action", "explore_keys")
         return state.replace(
             **{

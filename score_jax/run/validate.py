@@ -8,7 +8,8 @@ with 2), before it builds a network, runs ASRL or writes a file:
   number of every section (finite, in range), known environment and algorithm names, the
   environment's options typed against its config fields (``envs.parse_options``) and the
   environment built from them (a missing weather file is a problem here), sub-space names, the
-  device split of a data-parallel run, and the run directory (one that already holds a run is
+  device split of a data-parallel run (``--distributed``: whole seeds on every device of every
+  process), and the run directory (one that already holds a run is
   refused unless resumed);
 - ``prepare_train(cfg)``: what ``run.driver.train`` calls first. A ``--resume DIR`` takes the
   run's saved configuration (``config.json``, else the newest readable checkpoint); an option
@@ -41,7 +42,7 @@ MAX_SEED = 2**31 - 1 - 100_000  # the run derives further seeds by adding up to 
 # must be >= 1; None, where allowed, means "the preset").
 ZERO_OK = frozenset(
     {"eval_every", "robustness_seeds", "learning_starts", "train_failures"}
-    | {"train_failure_mode", "asrl_steps", "min_replay_size"}
+    | {"train_failure_mode", "asrl_steps", "min_replay_size", "process_id"}
 )
 UNIT_INTERVAL = frozenset(
     {"gamma", "discounting", "gae_lambda", "dropnode_prob", "qmix_eps_start", "qmix_eps_end"}
@@ -59,6 +60,8 @@ NON_NEGATIVE = frozenset(
 REPORT_OPTIONS = frozenset(
     {"quiet", "render", "render_steps", "robustness_seeds", "planned_references"}
 )
+# How the processes of a run are launched: a resumed run takes them from the command line only.
+LAUNCH_OPTIONS = frozenset({"distributed", "coordinator_address", "num_processes", "process_id"})
 
 
 class UsageError(ValueError):
@@ -226,9 +229,11 @@ def _check_train(cfg: TrainConfig, resuming: bool = False) -> tuple[list[str], A
             f"{o.replay_capacity}: the buffer could never hold a batch"
         )
     devices = jax.device_count()
+    problems += _distributed_problems(cfg, in_process, devices)
     # seeds that divide evenly over the devices are sharded whole (SeedTrainer); otherwise each
     # seed's environments and batches are
-    if in_process and cfg.data_parallel and devices > 1 and cfg.num_seeds % devices:
+    by_envs = in_process and cfg.data_parallel and devices > 1 and cfg.num_seeds % devices
+    if by_envs and not cfg.distributed:  # (distributed: whole seeds per device, checked above)
         for name in ("num_envs", "batch_size"):
             n = getattr(o, name)
             if n >= 1 and n % devices:
@@ -236,7 +241,12 @@ def _check_train(cfg: TrainConfig, resuming: bool = False) -> tuple[list[str], A
                     f"{flag('off_policy.' + name)} {n} must be a multiple of the {devices} "
                     "devices of the data-parallel run (or pass --no-data-parallel)"
                 )
-    elif not in_process and cfg.single.num_envs >= 1 and cfg.single.num_envs % devices:
+    elif (
+        not in_process
+        and not cfg.distributed
+        and cfg.single.num_envs >= 1
+        and cfg.single.num_envs % devices
+    ):
         problems.append(  # brax's loops always use every device
             f"--single.num-envs {cfg.single.num_envs} must be a multiple of the {devices} "
             "devices brax trains on"
@@ -254,6 +264,37 @@ def _check_train(cfg: TrainConfig, resuming: bool = False) -> tuple[list[str], A
     problems += _unknown_subspaces(names, raw.space)
     problems += _env_problems(cfg, raw, names, in_process)
     return problems, raw
+
+
+def _distributed_problems(cfg: TrainConfig, in_process: bool, devices: int) -> list[str]:
+    """``--distributed``: JAX joined to the other processes, an in-process algorithm, and whole
+    seeds on every device of every process."""
+    if not cfg.distributed:
+        given = [n for n in sorted(LAUNCH_OPTIONS - {"distributed"}) if getattr(cfg, n) is not None]
+        return [f"{flag(n)} needs --distributed" for n in given]
+    if not jax.distributed.is_initialized():
+        return [
+            "--distributed: jax.distributed is not initialized (score-train does it before JAX "
+            "starts; a program calling run.driver.train must call "
+            "score_jax.run.distributed.initialize(cfg) first)"
+        ]
+    if not in_process:
+        return [
+            f"--distributed trains in-process algorithms only; {cfg.algo} trains inside brax's "
+            "own loop, which runs on one process"
+        ]
+    if not cfg.data_parallel:
+        return [
+            "--distributed shards the seeds over every process's devices: drop --no-data-parallel"
+        ]
+    if cfg.num_seeds % devices:
+        procs = jax.process_count()
+        return [
+            f"--num-seeds {cfg.num_seeds} must be a multiple of the {devices} devices of the "
+            f"{procs} process{'es' if procs != 1 else ''} (--distributed trains whole seeds on "
+            "every device of every process)"
+        ]
+    return []
 
 
 def _env_problems(cfg: TrainConfig, raw, names, in_process: bool) -> list[str]:
@@ -348,7 +389,7 @@ def resume_config(
     done = steps[-1] if steps else 0
     problems, record = [], None
     for path, given, was in _changed_options(cli, saved):
-        if path in REPORT_OPTIONS or path in ("resume", "total_steps"):
+        if path in REPORT_OPTIONS | LAUNCH_OPTIONS or path in ("resume", "total_steps"):
             continue
         if path == "run_dir" and os.path.abspath(given) == os.path.abspath(run_dir):
             continue
@@ -373,6 +414,7 @@ def resume_config(
             record = {"extensions": extensions}
     given = lambda name: getattr(cli, name) != getattr(TrainConfig, name)  # the CLI's own
     report = {n: getattr(cli if given(n) else saved, n) for n in REPORT_OPTIONS}
+    report.update({n: getattr(cli, n) for n in LAUNCH_OPTIONS})
     cfg = dataclasses.replace(saved, resume=run_dir, run_dir=run_dir, total_steps=total, **report)
     transfer = None
     if transfer_dict is not None:

@@ -14,6 +14,7 @@ the number of environment steps. Implementations:
 - ``WandbWriter``: one Weights & Biases run, offline unless told otherwise (no network, no
   login; ``wandb sync`` uploads it later). Tags as for TensorBoard, with a ``seed_<k>/`` prefix
   for rows with a seed; ``env_steps`` is the x-axis of every metric. NaN values are skipped.
+- ``NullWriter`` writes nothing (every process but process 0 of a distributed run).
 - ``MultiWriter`` fans out to several writers; ``make_writers`` builds one from kind names and
   always includes the CSV writer.
 
@@ -341,6 +342,16 @@ class WandbWriter(_Writer):
         if not self._closed:
             self.run.finish()
             self._closed = True
+
+
+class NullWriter(_Writer):
+    """Writes nothing (the metric writer of every process but process 0 in a distributed run)."""
+
+    def write(self, step: int, metrics: Mapping[str, float], seed: int | None = None) -> None:
+        _metric_items(int(step), metrics, seed)  # the same checks as the real writers
+
+    def close(self) -> None:
+        pass
 
 
 # --- fan-out ----------------------------------------------------------------------------------
