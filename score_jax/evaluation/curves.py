@@ -86,7 +86,7 @@ def plot_learning_curve(
     import matplotlib.pyplot as plt
 
     rows = read_rows(csv_path)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(9.5, 4))
     train = seed_curves(rows, "episode_return", smooth=True)
     if train:
         _band(ax, train, "training episodes (moving mean)", "tab:blue")
@@ -108,7 +108,7 @@ def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(9.5, 4))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (label, csv_path) in enumerate(curves.items()):
         rows = read_rows(csv_path)
@@ -128,7 +128,8 @@ def _save(fig, ax, path: str, title: str, ylabel: str) -> None:
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    # outside the axes: with reference lines and seed bands inside there is no free corner
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
