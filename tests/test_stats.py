@@ -218,3 +218,18 @@ def test_learning_curve_draws_the_reference_returns(tmp_path, monkeypatch):
     plot_learning_curve(str(path), str(png), "t", references={"default": 8.0, "open-loop": 30.5})
     assert drawn == [(8.0, "default (8.0)"), (30.5, "open-loop (30.5)")]
     assert png.stat().st_size > 10_000
+
+
+def test_robustness_cells_get_an_iqm_over_trained_seeds():
+    from score_jax.evaluation.robustness import iqm_over_seeds
+
+    rng = np.random.default_rng(0)
+    per_seed = rng.normal(100.0, 10.0, size=(6, 3, 2))
+    per_seed[:, 2, 1] = 50.0  # every seed equal: the interval is the point
+    out = iqm_over_seeds(per_seed, ["default", "random"])
+    assert len(out["iqm"]) == 3 and len(out["iqm"][0]) == 2 and out["trained_seeds"] == 6
+    cell = out["iqm"][0][0]
+    assert cell["value"] == pytest.approx(scipy.stats.trim_mean(per_seed[:, 0, 0], 0.25))
+    assert cell["lo"] < cell["value"] < cell["hi"]
+    assert out["iqm"][2][1] == {"value": 50.0, "lo": 50.0, "hi": 50.0}
+    assert "| 2 |" in out["markdown"] and "random IQM [95% CI]" in out["markdown"]

@@ -21,6 +21,7 @@ from flax import struct
 
 from score_jax.agents.base import ActFn
 from score_jax.core.failures import FailureMode
+from score_jax.evaluation.stats import aggregate_one, format_interval
 from score_jax.run import distributed
 from score_jax.run.checkpoint import dump_json
 from score_jax.run.episodes import evaluate
@@ -137,6 +138,25 @@ def tabulate(
     )
 
 
+def iqm_over_seeds(per_seed: np.ndarray, modes: list[str], seed: int = 0) -> dict:
+    """IQM over trained seeds with its 95% stratified-bootstrap interval, per cell:
+    ``per_seed [K, n_failed, modes]`` (each trained seed's mean return in the cell) ->
+    ``{"iqm": [[{value, lo, hi}] per mode] per failed count, "markdown": table}``."""
+    k, n, m = per_seed.shape
+    cells = [
+        [aggregate_one(f"{i}/{modes[j]}", per_seed[:, i, j], seed=seed).iqm for j in range(m)]
+        for i in range(n)
+    ]
+    head = "| failed | " + " | ".join(f"{mode} IQM [95% CI]" for mode in modes) + " |"
+    lines = [head, "|---|" + "---|" * m]
+    lines += [
+        f"| {i} | " + " | ".join(format_interval(c.value, c.lo, c.hi) for c in row) + " |"
+        for i, row in enumerate(cells)
+    ]
+    iqm = [[{"value": c.value, "lo": c.lo, "hi": c.hi} for c in row] for row in cells]
+    return {"iqm": iqm, "markdown": "\n".join(lines), "trained_seeds": k}
+
+
 def plot_sweep(table: SweepTable, path: str, title: str = "") -> None:
     """Figs. 7/9 style: dot = mean, thick bar = std, thin bar = min..max, one colour per mode."""
     import matplotlib
@@ -194,6 +214,7 @@ def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
     per_seed = returns.reshape(-1, n, len(MODES), n_seeds * returns.shape[-1]).mean(-1)
     if not distributed.is_primary():
         return table
+    over = iqm_over_seeds(per_seed, table.modes, run.config.seed) if run.num_seeds > 1 else None
     dump_json(
         os.path.join(run.run_dir, "robustness.json"),
         {
@@ -201,6 +222,7 @@ def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
             "n_seeds": n_seeds,
             "trained_seeds": list(run.seeds),
             "per_trained_seed_mean": per_seed.tolist(),
+            **({"iqm_over_trained_seeds": over["iqm"]} if over else {}),
             "seconds": seconds,
         },
     )
@@ -215,4 +237,7 @@ def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
         f"settings x 1 episode in one call, {seconds:.1f} s (incl. compile)"
     )
     log(table.markdown())
+    if over:
+        log(f"over the {run.num_seeds} trained seeds (each seed's mean per cell):")
+        log(over["markdown"])
     return table
