@@ -109,8 +109,10 @@ class ObservationSets:
 class HVAEMetrics:
     """Per-observation terms of eq. 2 in nats (averaged over sets; all ``[]``).
 
-    ``elbo = -(recon + pred + act + kl_z) - kl_c`` (kl_c already divided by the set size);
-    ``loss`` is the minimised objective (with ``kl_weight`` / ``action_recon_weight``).
+    ``elbo = -(recon + pred + kl_z) - kl_c`` (kl_c already divided by the set size): eq. 2's
+    ELBO, without the action-reconstruction term ``act`` (the negative log-likelihood of the
+    sub-action under its decoder, not part of eq. 2; logged on its own). ``loss`` is the
+    minimised objective (with ``kl_weight`` and ``action_recon_weight * act``).
     """
 
     loss: jax.Array
@@ -349,7 +351,7 @@ def hvae_loss(
         + cfg.action_recon_weight * per_set["act"]
         + cfg.kl_weight * (per_set["kl_z"] + kl_c)
     )
-    elbo_s = -(per_set["recon"] + per_set["pred"] + per_set["act"] + per_set["kl_z"] + kl_c)
+    elbo_s = -(per_set["recon"] + per_set["pred"] + per_set["kl_z"] + kl_c)  # eq. 2 alone
     metrics = HVAEMetrics(
         loss=jnp.mean(loss_s),
         elbo=jnp.mean(elbo_s),

@@ -51,8 +51,9 @@ class HVAEResult(NamedTuple):
       params: its trained ``"params"``.
       c: ``[len(agents), c_dim]`` embeddings of the trained sub-spaces (posterior means).
       metrics: HVAEMetrics of the last training step.
-      history: ``[steps]`` loss (negative ELBO per observation, weighted) of every step.
-      elbo_history: ``[steps]`` ELBO per observation of every step.
+      history: ``[steps]`` loss (negative ELBO per observation, weighted, plus the weighted
+        action-reconstruction term) of every step.
+      elbo_history: ``[steps]`` eq. 2's ELBO per observation of every step (no action term).
     """
 
     model: HVAE
@@ -312,8 +313,10 @@ def pretrain(
 
     def progress(step, m):
         log(
-            f"  ASRL step {step}/{cfg.asrl_steps}: ELBO {float(m.elbo):.2f} "
-            f"(recon {float(m.recon):.2f}, pred {float(m.pred):.2f}, KL_z {float(m.kl_z):.2f})"
+            f"  ASRL step {step}/{cfg.asrl_steps}: ELBO (eq. 2) {float(m.elbo):.2f} "
+            f"(recon {float(m.recon):.2f}, pred {float(m.pred):.2f}, KL_z {float(m.kl_z):.2f}, "
+            f"KL_c {float(m.kl_c):.2f}); action recon NLL {float(m.act):.2f}; "
+            f"loss {float(m.loss):.2f}"
         )
 
     result = train_hvae(
