@@ -77,3 +77,22 @@ def test_a_new_run_does_not_inherit_an_old_best(tmp_path):
     )
     assert not fresh.offer(6, float("nan"), {"w": np.zeros(3)}, {}).any()
     fresh.close()
+
+
+def test_seeds_trained_one_after_another_keep_their_bests(tmp_path):
+    """brax-driven seeds are trained in turn, each evaluating from env step 0 again: the bests
+    of seeds evaluated at steps already saved (0, then 0 again) are kept, each in its slot."""
+    run_dir = str(tmp_path / "seq")
+    best = BestPolicy(run_dir, fresh=True, num_seeds=2)
+    nan = float("nan")
+    seed0 = lambda v: {"w": np.array([[v], [0.0]])}  # noqa: E731 (seed 1's slot unused)
+    seed1 = lambda v: {"w": np.array([[0.0], [v]])}  # noqa: E731
+    best.offer(0, [7.0, nan], seed0(7.0), {})
+    best.offer(100, [5.0, nan], seed0(5.0), {})  # worse: the last save stays at step 0
+    best.offer(0, [nan, 3.0], seed1(3.0), {})  # seed 1's first evaluation, at step 0 again
+    best.offer(0, [nan, 2.0], seed1(2.0), {})  # worse: nothing saved
+    best.offer(100, [nan, 4.0], seed1(4.0), {})
+    best.close()
+    agent, meta = restore_best(run_dir, {"w": np.zeros((2, 1))})
+    np.testing.assert_array_equal(np.asarray(agent["w"]), [[7.0], [4.0]])
+    assert meta["best_steps"] == [0, 100] and meta["best_returns"] == [7.0, 4.0]

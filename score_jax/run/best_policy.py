@@ -34,6 +34,10 @@ class BestPolicy:
     ``meta["best_steps"]`` / ``meta["best_returns"]`` (lists over seeds) say when each seed's
     best was evaluated and what it scored (None / -inf for a seed without one yet). A damaged
     best-policy checkpoint never stops the run: it is set aside and a new best is kept.
+
+    The checkpoint's step number is the env step of the save, or one past the previous save's
+    when that is not larger: seeds trained one after another (brax-driven algorithms) evaluate
+    from step 0 again, and a checkpoint's steps must grow.
     """
 
     def __init__(self, run_dir: str, fresh: bool, num_seeds: int = 1, log=print):
@@ -45,6 +49,7 @@ class BestPolicy:
         self.returns = np.full(num_seeds, -np.inf)
         self._agent: Any = None
         self._saved = self.ckpt.latest_step() is not None
+        self._last_id = self.ckpt.latest_step() if self._saved else -1
         if self._saved:
             try:
                 meta = self.ckpt.read_meta()
@@ -56,7 +61,7 @@ class BestPolicy:
                         self.ckpt.directory, f"{self.ckpt.directory}.unusable-{time.time():.0f}"
                     )
                 self.ckpt = Checkpointer(run_dir, max_to_keep=1, name=BEST)
-                self._saved = False
+                self._saved, self._last_id = False, -1
             else:
                 self.steps = [None if x is None else int(x) for x in meta["best_steps"]]
                 self.returns = np.asarray(meta["best_returns"], float)
@@ -79,7 +84,8 @@ class BestPolicy:
         self.steps = [int(step) if b else s for b, s in zip(better, self.steps, strict=True)]
         self.returns = np.where(better, returns, self.returns)
         best_meta = {**meta, "best_steps": self.steps, "best_returns": self.returns.tolist()}
-        self.ckpt.save(step, self._agent, best_meta)
+        self._last_id = max(int(step), self._last_id + 1)
+        self.ckpt.save(self._last_id, self._agent, best_meta)
         self._saved = True
         return better
 
