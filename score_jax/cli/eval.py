@@ -17,8 +17,8 @@ from typing import Literal
 
 import tyro
 
+from score_jax.cli.errors import guarded
 from score_jax.evaluation.saved_run import evaluate_saved_run
-from score_jax.run.checkpoint import CheckpointError
 from score_jax.run.compile_cache import enable_compile_cache
 
 
@@ -48,9 +48,10 @@ class EvalArgs:
 
 
 def main(args: EvalArgs) -> int:
+    """Evaluate; errors end as every command's do (``cli.errors``: ``error:`` lines, exit 1)."""
     enable_compile_cache(enabled=args.compile_cache)
-    try:
-        evaluate_saved_run(
+    return guarded(
+        lambda: evaluate_saved_run(
             args.run_dir,
             policy=args.policy,
             episodes=args.episodes,
@@ -59,10 +60,7 @@ def main(args: EvalArgs) -> int:
             out_dir=args.out,
             planned_references=args.planned_references,
         )
-    except (CheckpointError, ValueError, KeyError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    return 0
+    )
 
 
 def cli() -> int:
