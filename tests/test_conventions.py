@@ -45,7 +45,7 @@ def test_console_scripts_point_at_cli_functions():
     assert packages == ["score_jax*", "envs*"]  # train.py / transfer.py are not installed
 
 
-def test_extras_pin_cuda12_to_the_jax_version_and_install_tracking_and_render():
+def test_extras_pin_cuda12_to_the_jax_version_and_install_tracking_render_and_paper():
     deps = PYPROJECT["project"]["dependencies"]
     extras = PYPROJECT["project"]["optional-dependencies"]
     jax_pin = next(d for d in deps if d.startswith("jax=="))
@@ -53,6 +53,7 @@ def test_extras_pin_cuda12_to_the_jax_version_and_install_tracking_and_render():
     assert any(d.startswith("tensorboardX") for d in extras["tracking"])
     assert any(d.startswith("wandb") for d in extras["tracking"])
     assert any(d.startswith("imageio-ffmpeg") for d in extras["render"])
+    assert any(d.startswith("scikit-learn") for d in extras["paper"])  # Fig. 12's t-SNE
 
 
 def test_license_changelog_and_readme_notes():

@@ -22,6 +22,7 @@ from score_jax.networks import (
     unflatten_gat_weights,
 )
 from score_jax.networks.critic import HyperNet
+from score_jax.networks.mlp import MLP
 
 OBS, WIDTH, N = 5, 4, 4
 HCFG = HVAEConfig(obs_embed_dim=8, space_embed_dim=4, latent_dim=4, hidden=16, predict_steps=2)
@@ -278,6 +279,48 @@ def test_twin_critic(hvae_params, inputs):
     batch = jax.tree_util.tree_map(lambda x: jnp.stack([x, x, x]), inputs)
     qb = jax.jit(jax.vmap(lambda *a: twin.apply({"params": params}, *a, hvae_params)))(*batch)
     assert qb.shape == (3, 2)
+
+
+@pytest.mark.parametrize(
+    "cfg", [CCFG, dataclasses.replace(CCFG, aggregation="mean", hypernet=False, asrl=False)]
+)
+def test_embeddings_read_the_same_params_and_pool_to_the_same_q(cfg, hvae_params, inputs):
+    """Fig. 12's agent embeddings: asking for them changes neither the parameters nor Q, and
+    f_xi of the GAT embeddings' mean over active agents is Q."""
+    obs, actions, dim_mask, c, _ = inputs
+    mask = jnp.array([True, False, True, True])
+    critic, params = make(cfg, hvae_params, inputs)
+    via_embeddings = critic.init(
+        jax.random.PRNGKey(3), *inputs, hvae_params, method=GraphCritic.embeddings
+    )["params"]
+    assert jax.tree.structure(via_embeddings) == jax.tree.structure(params)
+    jax.tree.map(np.testing.assert_array_equal, via_embeddings, params)
+    args = (obs, actions, dim_mask, c, mask, hvae_params)
+    q = critic.apply({"params": params}, *args)
+    q_with, alpha, emb = critic.apply(
+        {"params": params}, *args, return_attention=True, return_embeddings=True
+    )
+    assert q_with == q and alpha.shape == (cfg.gat_layers, N, N)
+    emb_only = critic.apply({"params": params}, *args, method=GraphCritic.embeddings)
+    jax.tree.map(np.testing.assert_array_equal, emb_only, emb)
+    assert emb.p_w.shape == emb.gat.shape == (N, cfg.agent_dim)
+    assert np.all(np.asarray(emb.gat)[1] == 0)  # the masked agent's row
+    pooled = np.asarray(emb.gat)[[0, 2, 3]].mean(0)
+    q_again = MLP((cfg.hidden,), 1).apply({"params": params["f_xi"]}, jnp.asarray(pooled))[0]
+    np.testing.assert_allclose(q_again, q, rtol=1e-5, atol=1e-6)
+    # the embeddings after p_w do not depend on the other agents: moving agent 0 moves only row 0
+    moved = critic.apply(
+        {"params": params},
+        obs,
+        actions.at[0, 0].add(0.5),
+        dim_mask,
+        c,
+        mask,
+        hvae_params,
+        method=GraphCritic.embeddings,
+    )
+    changed = np.any(np.asarray(moved.p_w) != np.asarray(emb.p_w), axis=1)
+    assert changed.tolist() == [True, False, False, False]
 
 
 def test_mlp_on_parts_is_the_mlp_on_their_concatenation():

@@ -36,6 +36,20 @@ def seed_curves(
     return out
 
 
+def t_interval(stack: np.ndarray):
+    """``(mean, lo, hi)`` over axis 0 of ``stack [n, ...]``: the 95% interval is Student's t
+    over the n rows (``lo`` and ``hi`` None for one row)."""
+    stack = np.asarray(stack, float)
+    mean = stack.mean(0)
+    n = stack.shape[0]
+    if n < 2:
+        return mean, None, None
+    from scipy import stats as scipy_stats  # deferred: scipy.stats imports slowly
+
+    half = scipy_stats.t.ppf(0.975, n - 1) * stack.std(0, ddof=1) / math.sqrt(n)
+    return mean, mean - half, mean + half
+
+
 def mean_and_interval(curves: dict[int, tuple[np.ndarray, np.ndarray]]):
     """``(steps, mean, lo, hi)`` over seeds on a common step grid (each seed interpolated onto
     the steps all of them cover); the 95% interval is Student's t over seeds (None for one seed)."""
@@ -47,17 +61,19 @@ def mean_and_interval(curves: dict[int, tuple[np.ndarray, np.ndarray]]):
     if not len(grid):
         return None
     stack = np.stack([np.interp(grid, s, v) for s, v in curves.values()])
-    mean = stack.mean(0)
-    n = stack.shape[0]
-    if n < 2:
-        return grid, mean, None, None
-    from scipy import stats as scipy_stats  # deferred: scipy.stats imports slowly
-
-    half = scipy_stats.t.ppf(0.975, n - 1) * stack.std(0, ddof=1) / math.sqrt(n)
-    return grid, mean, mean - half, mean + half
+    return (grid, *t_interval(stack))
 
 
-def _band(ax, curves, label: str, colour, marker: str = "-") -> None:
+def plot_band(
+    ax,
+    curves,
+    label: str,
+    colour,
+    marker: str = "-",
+    band_label: str | None = "95% interval over seeds",
+) -> None:
+    """``curves`` (``seed -> (steps, values)``) on ``ax``: every seed faint, the mean over seeds
+    with its 95% interval (``band_label`` names the band in the legend; None leaves it out)."""
     for steps, values in curves.values():
         ax.plot(steps, values, marker, color=colour, alpha=0.25 if len(curves) > 1 else 0.9, lw=1)
     summary = mean_and_interval(curves)
@@ -67,7 +83,7 @@ def _band(ax, curves, label: str, colour, marker: str = "-") -> None:
         return
     grid, mean, lo, hi = summary
     ax.plot(grid, mean, "-", color=colour, lw=2.2, label=f"{label}, mean of {len(curves)} seeds")
-    ax.fill_between(grid, lo, hi, color=colour, alpha=0.2, lw=0, label="95% interval over seeds")
+    ax.fill_between(grid, lo, hi, color=colour, alpha=0.2, lw=0, label=band_label)
 
 
 # Reference policies drawn as horizontal lines on a learning curve, when the report has them.
@@ -89,10 +105,10 @@ def plot_learning_curve(
     fig, ax = plt.subplots(figsize=(9.5, 4))
     train = seed_curves(rows, "episode_return", smooth=True)
     if train:
-        _band(ax, train, "training episodes (moving mean)", "tab:blue")
+        plot_band(ax, train, "training episodes (moving mean)", "tab:blue")
     evals = seed_curves(rows, "eval_return", smooth=False)
     if evals:
-        _band(ax, evals, "evaluation (deterministic)", "tab:green", "o-")
+        plot_band(ax, evals, "evaluation (deterministic)", "tab:green", "o-")
     greys = plt.cm.Greys(np.linspace(0.35, 0.9, max(1, len(references or {}))))
     for colour, (name, value) in zip(greys, (references or {}).items(), strict=False):
         ax.axhline(value, ls="--", lw=1, color=colour, label=f"{name} ({value:.1f})")
@@ -117,7 +133,7 @@ def plot_curves(curves: dict[str, str], path: str, title: str) -> None:
         )
         per_seed = seed_curves(rows, column, smooth=column == "episode_return")
         name = label if column == "episode_return" else f"{label} (evaluations)"
-        _band(ax, per_seed, name, colours[i % len(colours)])
+        plot_band(ax, per_seed, name, colours[i % len(colours)])
     _save(fig, ax, path, title, "episode return (training episodes)")
 
 

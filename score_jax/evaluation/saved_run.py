@@ -65,20 +65,21 @@ def markdown_table(rows: dict, n_episodes: int) -> str:
     return "\n".join(lines)
 
 
-def held_seasons(
+def held_rollout(
     env, policies: dict, agents: dict, agent_index, repeat: int, key: jax.Array
-) -> dict:
+) -> tuple:
     """One season of the greenhouse ``env`` (not action-repeated) under each policy, each decision
-    held ``repeat`` days as in training and evaluation: ``{name: season.SeasonTrace}`` of daily
-    metrics.
+    held ``repeat`` days as in training and evaluation, in ONE compiled program:
+    ``(metrics, reward, action)`` with a leading ``[n_policies, days]`` on every leaf, in the
+    order of ``policies`` (``metrics``: daily ``GreenhouseMetrics``; ``reward [n, days]``;
+    ``action [n, days, space.n, space.max_dim]``: the normalised environment action applied on
+    each day, a fresh decision on days ``0, repeat, 2 repeat, ...``).
 
     ``policies[name](agents[name])`` is a batched learner policy (``run.algo.policy`` and its
-    agent state, or a reference policy and None); the agent states are arguments of the one
-    compiled program, in which every policy drives its own copy of the season (one vmapped
+    agent state, or a reference policy and None); the agent states are arguments of the
+    program, in which every policy drives its own copy of the season (one vmapped
     ``env.step`` for all of them) from the same start.
     """
-    from envs.greenhouse.season import FIRST_HARVEST_KG, SeasonTrace
-
     space, names = env.space, list(policies)
     n = len(names)
 
@@ -99,16 +100,25 @@ def held_seasons(
             )
             action = jnp.where((state.t % repeat == 0)[:, None, None], fresh, held)
             state = jax.vmap(env.step)(state, action)
-            return (state, action), (state.metrics, state.reward)
+            return (state, action), (state.metrics, state.reward, action)
 
         keys = jax.random.split(key_run, env.episode_length)
-        _, (metrics, reward) = jax.lax.scan(day, (state, held), keys)
-        return jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), (metrics, reward))  # [n, days]
+        _, out = jax.lax.scan(day, (state, held), keys)
+        return jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1), out)  # [n, days, ...]
 
     key_reset, key_run = jax.random.split(key)
-    metrics, reward = seasons(agents, key_reset, key_run)
+    return seasons({name: agents[name] for name in names}, key_reset, key_run)
+
+
+def held_seasons(
+    env, policies: dict, agents: dict, agent_index, repeat: int, key: jax.Array
+) -> dict:
+    """``held_rollout``'s seasons as ``{name: season.SeasonTrace}`` of daily metrics."""
+    from envs.greenhouse.season import FIRST_HARVEST_KG, SeasonTrace
+
+    metrics, reward, _ = held_rollout(env, policies, agents, agent_index, repeat, key)
     out = {}
-    for k, name in enumerate(names):
+    for k, name in enumerate(policies):
         m = jax.tree.map(lambda x, k=k: x[k], metrics)
         reached = m.cumulative_yield >= FIRST_HARVEST_KG
         first = jnp.where(jnp.any(reached), jnp.argmax(reached) + 1, -1).astype(jnp.int32)

@@ -439,7 +439,7 @@ def markdown_table(
 # --- plots ------------------------------------------------------------------------------------
 
 
-def _new_figure(width: float, height: float):
+def new_figure(width: float, height: float):
     """A matplotlib Figure with the Agg canvas (no pyplot, the global backend untouched)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -461,7 +461,7 @@ def plot_interval_estimates(
     names = list(aggregates)
     if not names:
         raise ValueError("no aggregates to plot")
-    fig = _new_figure(2.6 * len(metrics) + 1.0, 0.45 * len(names) + 1.2)
+    fig = new_figure(2.6 * len(metrics) + 1.0, 0.45 * len(names) + 1.2)
     axes = fig.subplots(1, len(metrics), sharey=True, squeeze=False)[0]
     colors = [f"C{i % 10}" for i in range(len(names))]
     for ax, metric in zip(axes, metrics, strict=True):
@@ -493,7 +493,7 @@ def plot_performance_profiles(
     """Performance profiles (``performance_profile``'s output) with shaded intervals against
     ``taus`` ``[num_taus]``; written to ``path``."""
     t = np.asarray(taus, dtype=np.float64).reshape(-1)
-    fig = _new_figure(5.0, 3.5)
+    fig = new_figure(5.0, 3.5)
     ax = fig.subplots()
     for i, (name, (profile, (lo, hi))) in enumerate(profiles.items()):
         ax.plot(t, profile, color=f"C{i % 10}", label=name)

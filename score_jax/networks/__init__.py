@@ -11,6 +11,7 @@ from score_jax.networks.actor import (
 )
 from score_jax.networks.critic import (
     FINETUNE_SUBTREES,
+    AgentEmbeddings,
     CriticConfig,
     GraphCritic,
     TwinCritic,
@@ -48,6 +49,7 @@ __all__ = [
     "sample_actions",
     "select_agents",
     "FINETUNE_SUBTREES",
+    "AgentEmbeddings",
     "CriticConfig",
     "GraphCritic",
     "TwinCritic",

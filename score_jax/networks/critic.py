@@ -9,6 +9,10 @@ For ONE sample (the learner vmaps over the batch):
                                   or plain learned weights (hypernet=False) -> params["gat"]
     Q     = f_xi(Mean_{active i} e_i^(m))                                  -> params["f_xi"]
 
+``GraphCritic.embeddings`` returns the agent embeddings e_i (after p_w) and e_i^(m) (after the
+GAT) that Fig. 12 visualises; it runs the same modules as ``__call__``, so it reads the same
+parameters and adds none.
+
 With ``asrl=True`` the HVAE parameters are an ARGUMENT (wrapped in ``stop_gradient``), never
 part of the critic's parameters: they are frozen by construction. With ``asrl=False`` the
 critic owns an encoder of the same architecture (params["encoder"]) trained with it, and
@@ -25,6 +29,7 @@ from typing import Any, Literal
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from score_jax.networks.gat import (
     AGGREGATIONS,
@@ -73,6 +78,20 @@ class CriticConfig:
             )
         if self.gat_layers < 1:
             raise ValueError(f"gat_layers must be >= 1, got {self.gat_layers}")
+
+
+@struct.dataclass
+class AgentEmbeddings:
+    """The critic's agent embeddings of one sample (add leading axes for batches).
+
+    Attributes:
+      p_w: ``[n, agent_dim]`` e_i = p_w(e_o, e_a,i), before any message passing.
+      gat: ``[n, agent_dim]`` e_i^(m), the output of the last GAT layer (rows of inactive
+        agents are exactly 0, see ``gat.gat_layer``).
+    """
+
+    p_w: jax.Array
+    gat: jax.Array
 
 
 class GATParams(nn.Module):
@@ -163,6 +182,7 @@ class GraphCritic(nn.Module):
         mask: jax.Array,
         hvae_params: Any = None,
         return_attention: bool = False,
+        return_embeddings: bool = False,
     ):
         """Args:
           obs: ``[obs_size]`` observation (shared by all sub-spaces).
@@ -172,9 +192,11 @@ class GraphCritic(nn.Module):
           mask: ``[n]`` bool, active agents (failed / dropped / padded agents False).
           hvae_params: the HVAE ``"params"`` (required when ``asrl=True``, ignored otherwise).
           return_attention: also return the attention weights.
+          return_embeddings: also return the agent embeddings (``AgentEmbeddings``).
 
         Returns:
-          ``q []``, or ``(q [], alpha [m, n, n])`` with ``return_attention``.
+          ``q []``; with ``return_attention`` and/or ``return_embeddings`` the tuple
+          ``(q [], alpha [m, n, n], AgentEmbeddings)`` without the parts not asked for.
         """
         cfg = self.config
         if cfg.asrl:
@@ -206,11 +228,17 @@ class GraphCritic(nn.Module):
         w = jnp.asarray(mask, jnp.float32)[:, None]
         pooled = jnp.sum(x * w, 0) / jnp.maximum(jnp.sum(w), 1.0)  # Mean over active agents
         q = MLP((cfg.hidden,), 1, name="f_xi")(pooled)[0]
-        return (q, alpha) if return_attention else q
+        extra = (alpha,) if return_attention else ()
+        extra += (AgentEmbeddings(e, x),) if return_embeddings else ()
+        return (q, *extra) if extra else q
 
     def attention_weights(self, obs, actions, dim_mask, c, mask, hvae_params=None) -> jax.Array:
         """``alpha [m, n, n]`` of every GAT layer (rows: receiver i, columns: sender j)."""
         return self(obs, actions, dim_mask, c, mask, hvae_params, return_attention=True)[1]
+
+    def embeddings(self, obs, actions, dim_mask, c, mask, hvae_params=None) -> AgentEmbeddings:
+        """The agent embeddings after p_w and after the GAT (``[n, agent_dim]`` each)."""
+        return self(obs, actions, dim_mask, c, mask, hvae_params, return_embeddings=True)[1]
 
 
 class TwinCritic(nn.Module):

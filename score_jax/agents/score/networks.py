@@ -20,7 +20,7 @@ from score_jax.agents.sac.state import SACHyper, SACState
 from score_jax.agents.sac.update import make_sac_update
 from score_jax.agents.score.config import ScoreConfig
 from score_jax.networks.actor import Actors, actor_policy
-from score_jax.networks.critic import TwinCritic
+from score_jax.networks.critic import AgentEmbeddings, GraphCritic, TwinCritic
 from score_jax.networks.hvae import HVAE
 
 
@@ -82,6 +82,32 @@ class ScoreNetworks:
             {"params": critic.net}, o, a, consts.dim_mask, c, m & consts.valid, frozen.hvae_params
         )
         return jax.vmap(apply)(obs, action, mask)
+
+    def agent_embeddings(
+        self, critic: CriticVars, consts: AgentConsts, obs, action, mask
+    ) -> AgentEmbeddings:
+        """The twin critics' agent embeddings (Fig. 12) for the inputs of ``q_fn``:
+        ``[B, obs], [B, n, w], [B, n] -> AgentEmbeddings`` with ``[B, 2, n, agent_dim]`` fields
+        (axis 1: the twin). Each twin's ``GraphCritic`` is applied to its slice of the stacked
+        parameters, the same computation ``q_fn`` runs."""
+        frozen: FrozenInputs = consts.critic_inputs
+        c = frozen.c if self.config.critic.asrl else critic.c
+        one = GraphCritic(self.config.critic, self.config.hvae, self.obs_size, self.width)
+
+        def apply(params, o, a, m):
+            return one.apply(
+                {"params": params},
+                o,
+                a,
+                consts.dim_mask,
+                c,
+                m & consts.valid,
+                frozen.hvae_params,
+                method=GraphCritic.embeddings,
+            )
+
+        twins = jax.vmap(apply, in_axes=(0, None, None, None))  # over the twins' stacked params
+        return jax.vmap(twins, in_axes=(None, 0, 0, 0))(critic.net["critics"], obs, action, mask)
 
 
 def make_optimizers(cfg: ScoreConfig):
