@@ -4,7 +4,7 @@ Figs. 6/8).
     python benchmarks/compare.py                 # greenhouse, small budget, 3 seeds
     python benchmarks/compare.py --envs spider --algos score sac isac --seeds 3
     python benchmarks/compare.py --transfer      # + Initial / Converge on unseen sub-spaces
-    python benchmarks/compare.py --budget paper  # 1 M env steps per run (the figures' scale)
+    python benchmarks/compare.py --budget paper  # 1 M env steps per run (the figures' x-axis)
     python benchmarks/compare.py --base.single.hidden 64 64  # any train.py setting for every run
 
 Every row (algorithm or SCORE ablation) trains ``--seeds`` seeds with ``--eval-every`` set, in
@@ -25,8 +25,10 @@ writes to ``--out``:
   ``compare_<env>_transfer.png`` holds the fine-tuning curves (Figs. 6b/8b).
 
 Runs go to ``--work-dir/<env>/<row>/s<first seed>[-<last seed>]``; a run whose ``result.json``
-exists is reused, so an interrupted comparison continues where it stopped. Budget: ``small`` =
-20k decisions per run on the greenhouse and the Spider, 2k on the probe; the wall time of a
+exists is reused, so an interrupted comparison continues where it stopped. Budgets count environment
+steps (simulated days on the greenhouse) whatever the action repeat: ``small`` = 160k on the
+greenhouse (20k decisions held 8 days), 20k on the Spider, 2k on the probe; ``paper`` = 1 M;
+``--env-steps N`` sets it, ``--total-steps N`` gives decisions instead. The wall time of a
 comparison is printed per row.
 """
 
@@ -49,6 +51,7 @@ import tyro
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
+import envs  # noqa: E402
 from score_jax import registry  # noqa: E402
 from score_jax.evaluation.curves import mean_and_interval  # noqa: E402
 from score_jax.evaluation.stats import (  # noqa: E402
@@ -63,8 +66,10 @@ from score_jax.run.build import build  # noqa: E402
 from score_jax.run.config import TrainConfig, to_dict  # noqa: E402
 from score_jax.run.driver import train  # noqa: E402
 
+# Environment steps per run (simulated days on the greenhouse), whatever the action repeat: a
+# greenhouse decision held 8 days costs 8 of them, so every row sees the same simulated time.
 BUDGETS = {
-    "small": {"greenhouse": 20_000, "spider": 20_000, "probe": 2_000},
+    "small": {"greenhouse": 160_000, "spider": 20_000, "probe": 2_000},
     "paper": {"greenhouse": 1_000_000, "spider": 1_000_000, "probe": 20_000},
 }
 SUBSETS = {
@@ -106,9 +111,13 @@ class CompareArgs:
     seeds: int = 5
     """Seeds per row (0 .. seeds-1), trained in one run per row (``--num-seeds``)."""
     budget: Literal["small", "paper"] = "small"
-    """Env steps per run: small (20k greenhouse / Spider) or paper (1 M)."""
+    """Environment steps per run (simulated days on the greenhouse): small (160k greenhouse =
+    20k decisions held 8 days, 20k Spider) or paper (1 M, the figures' x-axis)."""
+    env_steps: int = 0
+    """Environment steps per run; overrides --budget when > 0. Each row gets
+    ``env_steps // action_repeat`` decisions (its own action repeat)."""
     total_steps: int = 0
-    """Env steps per run; overrides --budget when > 0."""
+    """Decisions per run instead (the old unit; overrides --env-steps and --budget when > 0)."""
     transfer: bool = False
     """Also train on --transfer-subspaces and fine-tune on the full space (Initial / Converge
     columns)."""
@@ -279,8 +288,26 @@ def _seeds_dir(seeds: int) -> str:
     return "s0" if seeds == 1 else f"s0-{seeds - 1}"
 
 
+def action_repeat(cfg: TrainConfig) -> int:
+    """Environment steps per decision of a run of ``cfg`` (its option, else the env's preset)."""
+    if cfg.action_repeat is not None:
+        return int(cfg.action_repeat)
+    return int(envs.make(cfg.env, **cfg.env_overrides()).hints.action_repeat)
+
+
+def decisions(args: CompareArgs, env: str) -> tuple[int, int]:
+    """``(decisions per run, environment steps per run)`` on ``env`` for ``args``' budget."""
+    repeat = action_repeat(dataclasses.replace(args.base, env=env))
+    if args.total_steps > 0:
+        return args.total_steps, args.total_steps * repeat
+    budget = args.env_steps or BUDGETS[args.budget][env]
+    if budget < repeat:
+        raise ValueError(f"a budget of {budget} env steps is less than one decision ({repeat})")
+    return budget // repeat, budget // repeat * repeat
+
+
 def compare_env(args: CompareArgs, env: str) -> dict:
-    steps = args.total_steps or BUDGETS[args.budget][env]
+    steps, env_steps = decisions(args, env)
     subset = args.transfer_subspaces or SUBSETS[env]
     jobs = []  # (label, kind, cfg, transfer target dir) with kind "full" or "transfer"
     seeds_dir = _seeds_dir(args.seeds)
@@ -337,11 +364,17 @@ def compare_env(args: CompareArgs, env: str) -> dict:
             f"mean {shown:.2f} ({time.time() - t:.0f} s, {time.time() - t0:.0f} s in all)",
             flush=True,
         )
-    return summarise(args, env, steps, subset, results, errors)
+    return summarise(args, env, steps, subset, results, errors, env_steps)
 
 
 def summarise(
-    args: CompareArgs, env: str, steps: int, subset: str, results: dict, errors: dict
+    args: CompareArgs,
+    env: str,
+    steps: int,
+    subset: str,
+    results: dict,
+    errors: dict,
+    env_steps: int | None = None,
 ) -> dict:
     table = {}
     for (label, kind), res in results.items():
@@ -360,6 +393,7 @@ def summarise(
     out = {
         "env": env,
         "total_steps": steps,
+        "env_steps": env_steps if env_steps is not None else steps,
         "seeds": args.seeds,
         "eval_episodes": args.eval_episodes,
         "transfer_subspaces": subset if args.transfer else None,
@@ -373,7 +407,7 @@ def summarise(
     plot(
         {k: v["full"]["curves"] for k, v in table.items() if "full" in v},
         base + ".png",
-        f"{env}: full sub-action spaces ({steps} decisions)",
+        f"{env}: full sub-action spaces ({out['env_steps']} env steps = {steps} decisions)",
     )
     if finals:
         lo = min(float(v.min()) for v in finals.values())
@@ -400,9 +434,9 @@ def markdown(out: dict, transfer: bool) -> str:
 
     head = (
         f"Final deterministic evaluation return: IQM [95% stratified-bootstrap CI] over "
-        f"{out['seeds']} seeds ({out['eval_episodes']} episodes each), {out['total_steps']} "
-        f"decisions per seed on `{out['env']}`; P(SCORE better): the probability that a SCORE "
-        "seed beats one of the row's.\n\n"
+        f"{out['seeds']} seeds ({out['eval_episodes']} episodes each), {out['env_steps']} "
+        f"environment steps ({out['total_steps']} decisions) per seed on `{out['env']}`; "
+        "P(SCORE better): the probability that a SCORE seed beats one of the row's.\n\n"
     )
     cols = ["Fully: Converge", "P(SCORE better)"]
     cols += ["Unseen: Initial", "Unseen: Converge"] if transfer else []

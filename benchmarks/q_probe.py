@@ -21,7 +21,7 @@ does rank well shows as "critic's first choice truly better than the policy".
     python benchmarks/q_probe.py --run-dir runs/main-k6 [--policy last|best] [--candidates 64]
         [--decisions 0 5 10 15] [--out benchmarks/results]
 
-Writes ``q_probe_<run name>.json`` and ``.md`` under ``--out`` (default: the run directory).
+Writes ``q_probe_<run name>.json`` and ``.md`` under ``--out`` (default ``runs/benchmarks``).
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
 
 
 @dataclasses.dataclass
@@ -48,8 +49,8 @@ class Args:
     """Decisions (0-based, in the run's decision interval) at which actions are probed."""
     seed: int = 0
     """Key of the random candidates and of the episode's reset."""
-    out: str | None = None
-    """Output folder; None = the run directory."""
+    out: str = os.path.join(ROOT, "runs", "benchmarks")
+    """Output folder (the committed ones: --out benchmarks/results)."""
 
 
 def probe_seed(run, k: int, args: Args) -> dict:
@@ -185,7 +186,7 @@ def main(args: Args) -> dict:
         "candidates": args.candidates,
         "seeds": seeds,
     }
-    out = args.out or args.run_dir
+    out = args.out
     os.makedirs(out, exist_ok=True)
     name = os.path.basename(os.path.normpath(args.run_dir))
     with open(os.path.join(out, f"q_probe_{name}.json"), "w") as f:

@@ -75,6 +75,23 @@ def test_license_changelog_and_readme_notes():
     ]
 
 
+def test_comparison_budgets_count_environment_steps_whatever_the_action_repeat():
+    """compare.py gives every row the same environment steps (simulated days): a greenhouse
+    decision held 8 days costs 8; --total-steps still gives decisions."""
+    from benchmarks.compare import BUDGETS, CompareArgs, decisions
+
+    gh = CompareArgs(envs=("greenhouse",), env_steps=16_000)
+    assert decisions(gh, "greenhouse") == (2_000, 16_000)
+    daily = dataclasses.replace(gh, base=TrainConfig(action_repeat=1))
+    assert decisions(daily, "greenhouse") == (16_000, 16_000)
+    assert decisions(dataclasses.replace(gh, total_steps=100), "greenhouse") == (100, 800)
+    paper = CompareArgs(budget="paper")
+    assert decisions(paper, "greenhouse") == (125_000, BUDGETS["paper"]["greenhouse"])
+    assert decisions(paper, "spider")[1] == BUDGETS["paper"]["spider"]
+    with pytest.raises(ValueError, match="less than one decision"):
+        decisions(dataclasses.replace(gh, env_steps=4), "greenhouse")
+
+
 def test_benchmarks_write_to_runs_unless_told_otherwise():
     """No benchmark writes the committed benchmarks/results by default; the README's commands
     that regenerate committed results pass --out benchmarks/results."""
