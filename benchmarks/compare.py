@@ -105,9 +105,9 @@ class CompareArgs:
     """Environments to compare on."""
     algos: tuple[str, ...] = ()
     """Algorithms (registry names); empty = score and every registered baseline."""
-    ablations: Literal["none", "single", "full"] = "single"
-    """SCORE ablation rows (Table 2): single = aggregation mean / sum, no hypernet, no ASRL;
-    full = all 11 combinations."""
+    ablations: Literal["none", "asrl", "single", "full"] = "single"
+    """SCORE ablation rows (Table 2): asrl = no ASRL only (AL+HN, the row of Fig. 12); single =
+    aggregation mean / sum, no hypernet, no ASRL; full = all 11 combinations."""
     seeds: int = 5
     """Seeds per row (0 .. seeds-1), trained in one run per row (``--num-seeds``)."""
     budget: Literal["small", "paper"] = "small"
@@ -144,7 +144,9 @@ def rows(args: CompareArgs) -> list[tuple[str, str, dict]]:
     ]
     if args.ablations != "none" and "score" in [r[1] for r in out]:
         combos = [(asrl, agg, hn) for asrl in (True, False) for agg in AGG for hn in (True, False)]
-        if args.ablations == "single":
+        if args.ablations == "asrl":
+            combos = [(False, "attention", True)]
+        elif args.ablations == "single":
             combos = [
                 (True, "mean", True),
                 (True, "sum", True),
@@ -358,7 +360,7 @@ def compare_env(args: CompareArgs, env: str) -> dict:
             errors.setdefault(f"{label} ({kind})", f"{type(e).__name__}: {e}")
             print(f"FAILED ({type(e).__name__}: {str(e)[:200]})", flush=True)
             continue
-        results[(label, kind)] = res
+        results[(label, kind)] = {**res, "run_dir": target or cfg.run_dir}
         shown = np.mean(res["returns"] if kind == "full" else res["converge"])
         print(
             f"mean {shown:.2f} ({time.time() - t:.0f} s, {time.time() - t0:.0f} s in all)",
@@ -379,11 +381,12 @@ def summarise(
     table = {}
     for (label, kind), res in results.items():
         entry = table.setdefault(label, {})
+        where = {"run_dir": res["run_dir"]} if "run_dir" in res else {}
         if kind == "full":
-            entry["full"] = {**_summary(res["returns"]), "curves": res["curves"]}
+            entry["full"] = {**_summary(res["returns"]), "curves": res["curves"], **where}
         else:
             entry["initial"] = _summary(res["initial"])
-            entry["converge"] = {**_summary(res["converge"]), "curves": res["curves"]}
+            entry["converge"] = {**_summary(res["converge"]), "curves": res["curves"], **where}
     finals = {k: np.asarray(v["full"]["per_seed"]) for k, v in table.items() if "full" in v}
     if "SCORE" in finals:  # P(SCORE > row): the probability that a SCORE seed beats a row's seed
         for label, values in finals.items():

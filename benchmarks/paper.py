@@ -1,0 +1,476 @@
+"""The paper's experiments in one command: Tables 2 and 3, Figures 6 to 12 and a claims table.
+
+    python benchmarks/paper.py --quick                       # a few minutes: the pipeline, small
+    python benchmarks/paper.py --seeds 5 --envs greenhouse   # CPU scale (hours)
+    python benchmarks/paper.py --out docs                    # regenerate the committed page
+
+For each environment and each setting of the default-centred action prior (``--priors``: on, off
+or both; the prior is one switch, ``TrainConfig.default_prior``, for every algorithm), it runs
+``benchmarks/compare.py``'s comparison with transfer (every algorithm, the SCORE ablations, the
+transfer variants of the fixed-width baselines, all on the same environment-step budget and
+seeds, ``--num-seeds`` K seeds in one program per row), then the robustness sweep of every
+full-space run, and, on the greenhouse, a SCORE run with the profit reward for Fig. 10. Every
+run and sweep is cached in ``--work-dir`` (a run whose ``result.json`` or ``robustness.json``
+exists is reused), so a killed invocation continues where it stopped; compiled programs go to
+the persistent compilation cache.
+
+It writes ``<out>/results.md`` and its figures in ``<out>/results/``:
+
+- Figs. 6a/8a (learning curves, Spider / greenhouse) and 6b/8b (fine-tuning on unseen
+  sub-spaces), mean and 95% band over seeds;
+- Figs. 7/9: every algorithm's robustness, one panel per failure mode;
+- Fig. 10 (greenhouse): temperature vs CO2 setpoints at 0/6/12/18 h, yield vs profit reward;
+- Fig. 11: the ablations' robustness as a share of their full-space return;
+- Fig. 12: t-SNE of the critic's agent embeddings, AL+HN (no ASRL) vs SCORE (needs the
+  ``paper`` extra, scikit-learn; without it the page says so);
+- Table 2 (SCORE and its ablations, including the eq. 2 ASRL row ``ASRL(eq.2)``: the HVAE
+  trained without the action-reconstruction term) and Table 3 (Initial / Converge per
+  algorithm and variant), IQM [95% CI] over seeds and the per-seed values;
+- the claims of §5 (``score_jax.evaluation.claims``) with a verdict each.
+
+Paper (greenhouse numbering: Fig. 8 = learning and transfer, Fig. 9 = robustness; Spider:
+Figs. 6 and 7).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+import platform
+import shutil
+import sys
+import time
+from typing import Literal
+
+import jax
+import numpy as np
+import tyro
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from benchmarks import compare  # noqa: E402
+from score_jax.evaluation import claims as claims_lib  # noqa: E402
+from score_jax.evaluation import paper_figures as figs  # noqa: E402
+from score_jax.evaluation.robustness import run_sweep  # noqa: E402
+from score_jax.run.build import restore_run  # noqa: E402
+from score_jax.run.compile_cache import enable_compile_cache  # noqa: E402
+from score_jax.run.config import TrainConfig  # noqa: E402
+from score_jax.run.provenance import git_info  # noqa: E402
+
+FIGURES = {  # (learning, transfer, robustness) figure numbers of the paper per environment
+    "spider": ("6a", "6b", "7"),
+    "greenhouse": ("8a", "8b", "9"),
+    "probe": ("P-a", "P-b", "P-r"),
+}
+# Environment steps per run (simulated days on the greenhouse). Full: the main job's 144k
+# decisions held 8 days on the greenhouse, the learning issue's 500k steps on the Spider.
+FULL_BUDGET = {"greenhouse": 1_152_000, "spider": 500_000, "probe": 20_000}
+QUICK_BUDGET = {"greenhouse": 16_000, "spider": 4_000, "probe": 1_000}
+QUICK_ALGOS = ("score", "isac", "ppo")
+EQ2_LABEL = "ASRL(eq.2)"
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperArgs:
+    """Reproduce the paper's tables, figures and claims; write results.md and its figures."""
+
+    quick: bool = False
+    """A small version of everything (the greenhouse, SCORE / ISAC / PPO, the no-ASRL ablation,
+    2 seeds, 16k simulated days, the prior on): checks the pipeline in minutes, not the claims."""
+    seeds: int = 0
+    """Seeds per row; 0 = 5 (2 with --quick)."""
+    envs: tuple[Literal["greenhouse", "spider", "probe"], ...] = ()
+    """Environments; empty = greenhouse and Spider (greenhouse with --quick)."""
+    algos: tuple[str, ...] = ()
+    """Algorithms; empty = every registered one (score, isac, ppo with --quick)."""
+    ablations: Literal["none", "asrl", "single", "full"] | None = None
+    """SCORE ablation rows (compare.py's choices); None = single (asrl with --quick)."""
+    eq2_row: bool | None = None
+    """Add the Table 2 row with eq. 2's HVAE objective alone (no action-reconstruction term);
+    None = yes (no with --quick)."""
+    priors: tuple[Literal["on", "off"], ...] = ()
+    """Settings of the default-centred action prior to run; empty = both (on with --quick).
+    The first one is the headline (figures and claims)."""
+    env_steps: int = 0
+    """Environment steps per run; 0 = the preset (full: greenhouse 1.152 M = the main job,
+    Spider 500k; quick: greenhouse 16k, Spider 4k)."""
+    variants: tuple[Literal["plain", "mask", "penalty"], ...] = ("plain", "mask", "penalty")
+    """Transfer variants of the fixed-width baselines (Table 3)."""
+    eval_points: int = 0
+    """Deterministic evaluations per run (curve points); 0 = 8 (2 with --quick)."""
+    eval_episodes: int = 0
+    """Episodes per evaluation; 0 = 10 (2 with --quick)."""
+    robustness_seeds: int = 0
+    """Failure draws per robustness setting; 0 = 10 (2 with --quick)."""
+    out: str = os.path.join(ROOT, "runs", "benchmarks", "paper")
+    """Where results.md and results/ go (the committed page: --out docs)."""
+    work_dir: str = os.path.join(ROOT, "runs", "paper")
+    """Where the runs go (reused when settings match)."""
+    base: TrainConfig = TrainConfig(robustness_seeds=0, quiet=True)
+    """Settings shared by every run (e.g. --base.score.asrl-steps 500)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """``PaperArgs`` with every preset resolved."""
+
+    envs: tuple[str, ...]
+    algos: tuple[str, ...]
+    ablations: str
+    eq2_row: bool
+    priors: tuple[str, ...]
+    seeds: int
+    eval_points: int
+    eval_episodes: int
+    robustness_seeds: int
+
+
+def plan(args: PaperArgs) -> Plan:
+    q = args.quick
+    return Plan(
+        envs=args.envs or (("greenhouse",) if q else ("greenhouse", "spider")),
+        algos=args.algos or (QUICK_ALGOS if q else ()),
+        ablations=args.ablations or ("asrl" if q else "single"),
+        eq2_row=(not q) if args.eq2_row is None else args.eq2_row,
+        priors=args.priors or (("on",) if q else ("on", "off")),
+        seeds=args.seeds or (2 if q else 5),
+        eval_points=args.eval_points or (2 if q else 8),
+        eval_episodes=args.eval_episodes or (2 if q else 10),
+        robustness_seeds=args.robustness_seeds or (2 if q else 10),
+    )
+
+
+def budget(args: PaperArgs, env: str) -> int:
+    return args.env_steps or (QUICK_BUDGET if args.quick else FULL_BUDGET)[env]
+
+
+def with_prior(base: TrainConfig, on: bool) -> TrainConfig:
+    """``base`` with the default-centred action prior on or off for every algorithm."""
+    if "default_prior" not in {f.name for f in dataclasses.fields(TrainConfig)}:
+        if not on:
+            raise ValueError("this version has no switch for the default-centred prior")
+        return base
+    return dataclasses.replace(base, default_prior=on)
+
+
+def compare_args(args: PaperArgs, p: Plan, env: str, prior: str) -> compare.CompareArgs:
+    base = with_prior(args.base, prior == "on")
+    return compare.CompareArgs(
+        envs=(env,),
+        algos=p.algos,
+        ablations=p.ablations,
+        seeds=p.seeds,
+        env_steps=budget(args, env),
+        transfer=True,
+        variants=args.variants,
+        eval_points=p.eval_points,
+        eval_episodes=p.eval_episodes,
+        out=os.path.join(args.work_dir, f"prior-{prior}", "tables"),
+        work_dir=os.path.join(args.work_dir, f"prior-{prior}"),
+        base=base,
+    )
+
+
+def eq2_row(cargs: compare.CompareArgs, env: str) -> tuple[str, dict]:
+    """Table 2's row with the HVAE trained on eq. 2 alone (action-reconstruction weight 0)."""
+    score = cargs.base.score
+    hvae = dataclasses.replace(score.hvae, action_recon_weight=0.0)
+    steps, _ = compare.decisions(cargs, env)
+    cfg = dataclasses.replace(
+        cargs.base,
+        env=env,
+        algo="score",
+        seed=0,
+        num_seeds=cargs.seeds,
+        total_steps=steps,
+        eval_every=max(1, steps // cargs.eval_points),
+        eval_episodes=cargs.eval_episodes,
+        score=dataclasses.replace(score, hvae=hvae),
+        run_dir=os.path.join(cargs.work_dir, env, "asrl_eq2", compare._seeds_dir(cargs.seeds)),
+    )
+    res = compare.run_full(cfg, cargs.eval_episodes)
+    return EQ2_LABEL, {
+        "full": {
+            **compare._summary(res["returns"]),
+            "curves": res["curves"],
+            "run_dir": cfg.run_dir,
+        }
+    }
+
+
+def profit_run(cargs: compare.CompareArgs, env: str) -> str:
+    """A SCORE run on the greenhouse with the profit reward (Fig. 10), same budget and seeds."""
+    steps, _ = compare.decisions(cargs, env)
+    options = tuple(o for o in cargs.base.env_options if not o.startswith("reward="))
+    cfg = dataclasses.replace(
+        cargs.base,
+        env=env,
+        algo="score",
+        seed=0,
+        num_seeds=cargs.seeds,
+        total_steps=steps,
+        eval_every=max(1, steps // cargs.eval_points),
+        eval_episodes=cargs.eval_episodes,
+        env_options=(*options, "reward='profit'"),
+        run_dir=os.path.join(cargs.work_dir, env, "score_profit", compare._seeds_dir(cargs.seeds)),
+    )
+    compare.run_full(cfg, cargs.eval_episodes)
+    return cfg.run_dir
+
+
+def robustness_of(run_dir: str, n_seeds: int, log) -> dict:
+    """The run's robustness sweep (``robustness.json``), run once and then read back."""
+    path = os.path.join(run_dir, "robustness.json")
+    if os.path.exists(path):
+        saved = json.load(open(path))
+        if saved.get("n_seeds") == n_seeds:
+            return saved
+    run_sweep(restore_run(run_dir, log=lambda *a: None), n_seeds, log=lambda *a: None)
+    log(f"  robustness sweep of {run_dir}")
+    return json.load(open(path))
+
+
+def _full_rows(rows: dict) -> dict:
+    return {k: v for k, v in rows.items() if "full" in v and "run_dir" in v["full"]}
+
+
+def setpoint_figure(run_dirs: dict[str, str], path: str, title: str) -> None:
+    """Fig. 10 from SCORE runs by label (seed 0 of each, each with its own reward)."""
+    from envs.wrappers import unwrapped
+
+    setpoints = {}
+    for label, run_dir in run_dirs.items():
+        run = restore_run(run_dir, log=lambda *a: None)
+        one = run.for_seed(0)
+        setpoints.update(
+            figs.season_setpoints(
+                unwrapped(run.env),
+                {label: run.algo.policy},
+                {label: one.state.agent},
+                run.agent_index,
+                run.spec.action_repeat,
+                jax.random.PRNGKey(0),
+            )
+        )
+    figs.plot_setpoints(setpoints, path, title)
+
+
+def embedding_figure(run_dirs: dict[str, str], path: str, title: str) -> str | None:
+    """Fig. 12 from runs by label; None when drawn, else why not (scikit-learn missing)."""
+    import importlib.util
+
+    if importlib.util.find_spec("sklearn") is None:
+        return "t-SNE needs scikit-learn: pip install -e .[paper]"
+    embeddings, names = {}, None
+    for label, run_dir in run_dirs.items():
+        run = restore_run(run_dir, log=lambda *a: None)
+        one = run.for_seed(0)
+        embeddings[label] = figs.collect_agent_embeddings(
+            run.env, run.algo, one.state.agent, run.agent_index, jax.random.PRNGKey(0)
+        )
+        names = [run.env.space.names[i] for i in run.agent_index]
+    figs.plot_agent_embeddings(embeddings, names, path, title)
+    return None
+
+
+def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
+    """Every run, sweep and figure of one environment; the data results.md is written from."""
+    learn_fig, transfer_fig, robust_fig = FIGURES[env]
+    out = {"env": env, "env_steps": budget(args, env), "priors": {}, "figures": {}, "notes": []}
+    for prior in p.priors:
+        cargs = compare_args(args, p, env, prior)
+        log(f"[{env}, prior {prior}] comparison: {len(compare.rows(cargs))} rows x {p.seeds} seeds")
+        cmp = compare.compare_env(cargs, env)
+        rows = dict(cmp["rows"])
+        if p.eq2_row and "score" in (p.algos or ("score",)):
+            label, row = eq2_row(cargs, env)
+            rows[label] = row
+        robust = {}
+        for label, row in _full_rows(rows).items():
+            try:
+                robust[label] = robustness_of(row["full"]["run_dir"], p.robustness_seeds, log)
+            except Exception as e:  # one failed sweep is reported, the page still comes out
+                out["notes"].append(f"robustness of {label} (prior {prior}) failed: {e}")
+        out["priors"][prior] = {
+            "compare": {**cmp, "rows": rows},
+            "robustness": robust,
+            "claims": claims_lib.check_claims(rows, robust),
+        }
+    head = out["priors"][p.priors[0]]
+    cmp, robust, rows = head["compare"], head["robustness"], head["compare"]["rows"]
+    tag = f"{env}, prior {p.priors[0]}"
+
+    def figure(name: str, draw) -> None:
+        path = os.path.join(figdir, f"fig{name}_{env}.png")
+        try:
+            why = draw(path)
+        except Exception as e:  # a figure that cannot be drawn is named on the page
+            why = f"{type(e).__name__}: {e}"
+        if why:
+            out["notes"].append(f"Fig. {name} not drawn: {why}")
+        else:
+            out["figures"][name] = os.path.basename(path)
+
+    src = os.path.join(compare_args(args, p, env, p.priors[0]).out, f"compare_{env}.png")
+    figure(learn_fig, lambda path: shutil.copyfile(src, path) and None)
+    curves, initial = figs.transfer_curves_from_compare(cmp)
+    figure(
+        transfer_fig,
+        lambda path: figs.plot_transfer_curves(
+            curves, path, f"{tag}: fine-tuning on unseen sub-spaces", initial
+        ),
+    )
+    algos = {k: v for k, v in robust.items() if not claims_lib.is_ablation(k) and k != EQ2_LABEL}
+    figure(
+        robust_fig,
+        lambda path: figs.plot_robustness_panels(algos, path, f"{tag}: robustness"),
+    )
+    ablations = {k: v for k, v in robust.items() if k == "SCORE" or k not in algos}
+    if len(ablations) > 1:
+        figure(
+            "11",
+            lambda path: figs.plot_ablation_robustness(
+                ablations, path, f"{tag}: ablations' robustness"
+            ),
+        )
+    full = _full_rows(rows)
+    if "SCORE" in full and "AL+HN" in full:
+        figure(
+            "12",
+            lambda path: embedding_figure(
+                {k: full[k]["full"]["run_dir"] for k in ("AL+HN", "SCORE")},
+                path,
+                f"{tag}: agent embeddings (t-SNE)",
+            ),
+        )
+    if env == "greenhouse" and "SCORE" in full:
+        cargs = compare_args(args, p, env, p.priors[0])
+        runs = {"SCORE, yield reward": full["SCORE"]["full"]["run_dir"]}
+        runs["SCORE, profit reward"] = profit_run(cargs, env)
+        figure("10", lambda path: setpoint_figure(runs, path, f"{tag}: setpoints"))
+    return out
+
+
+def _cell(d: dict | None) -> str:
+    if not d:
+        return "—"
+    iqm = d["iqm"]
+    return f"{iqm['value']:.1f} [{iqm['lo']:.1f}, {iqm['hi']:.1f}]"
+
+
+def _seeds(d: dict | None) -> str:
+    return ", ".join(f"{x:.1f}" for x in (d or {}).get("per_seed", [])) or "—"
+
+
+def tables_markdown(rows: dict) -> str:
+    """Table 2 (SCORE and its ablations) and Table 3 (transfer: Initial / Converge)."""
+    t2 = [
+        "| SCORE variant | full space: final return | unseen: Converge | per seed (full) |",
+        "|---|---:|---:|---|",
+    ]
+    for label, v in rows.items():
+        if label == "SCORE" or claims_lib.is_ablation(label) or label == EQ2_LABEL:
+            shown = "ASRL+AL+HN (SCORE)" if label == "SCORE" else label
+            t2.append(
+                f"| {shown} | {_cell(v.get('full'))} | {_cell(v.get('converge'))} "
+                f"| {_seeds(v.get('full'))} |"
+            )
+    t3 = [
+        "| algorithm (variant) | full space | unseen: Initial | unseen: Converge "
+        "| per seed (Converge) |",
+        "|---|---:|---:|---:|---|",
+    ]
+    for label, v in rows.items():
+        if not claims_lib.is_ablation(label) and label != EQ2_LABEL:
+            t3.append(
+                f"| {label} | {_cell(v.get('full'))} | {_cell(v.get('initial'))} "
+                f"| {_cell(v.get('converge'))} | {_seeds(v.get('converge'))} |"
+            )
+    return (
+        "Table 2 (ablations):\n\n"
+        + "\n".join(t2)
+        + "\n\nTable 3 (transfer to unseen sub-spaces):\n\n"
+        + "\n".join(t3)
+    )
+
+
+def page(args: PaperArgs, p: Plan, results: list[dict], seconds: float) -> str:
+    """results.md."""
+    git = git_info() or {}
+    cmd = "python benchmarks/paper.py " + " ".join(sys.argv[1:])
+    lines = [
+        "# The paper's experiments, reproduced",
+        "",
+        "Generated by `benchmarks/paper.py`; do not edit by hand.",
+        "",
+        f"- Command: `{cmd.strip()}`",
+        f"- Commit: `{git.get('commit', 'unknown')}`" + (" (dirty)" if git.get("dirty") else ""),
+        f"- Machine: {platform.machine()}, {os.cpu_count()} CPU cores, JAX {jax.__version__} on "
+        f"{jax.devices()[0].platform}; {seconds / 60:.1f} min for this invocation "
+        "(cached runs not counted again)",
+        f"- Date: {datetime.date.today().isoformat()}",
+        f"- Settings: {p.seeds} seeds per row, {p.eval_episodes} evaluation episodes, "
+        f"{p.robustness_seeds} failure draws per robustness setting, prior "
+        + " and ".join(p.priors)
+        + (" (quick: checks the pipeline, not the claims)" if args.quick else ""),
+        "",
+        "Every number is an IQM with its 95% stratified-bootstrap interval over seeds; verdicts "
+        "compare per-seed values by the probability of improvement (see "
+        "`score_jax/evaluation/claims.py`).",
+    ]
+    for r in results:
+        env = r["env"]
+        for prior, res in r["priors"].items():
+            cmp = res["compare"]
+            lines += [
+                "",
+                f"## {env}, default-centred prior {prior}",
+                "",
+                f"{cmp['env_steps']} environment steps ({cmp['total_steps']} decisions) per "
+                f"run, {cmp['seeds']} seeds per row; transfer sub-spaces "
+                f"`{cmp['transfer_subspaces']}`.",
+                "",
+                "### Claims",
+                "",
+                claims_lib.claims_markdown(res["claims"]),
+                "",
+                "### Tables",
+                "",
+                tables_markdown(cmp["rows"]),
+            ]
+            if cmp.get("errors"):
+                lines += [
+                    "",
+                    "Failed rows: " + "; ".join(f"{k}: {v}" for k, v in cmp["errors"].items()),
+                ]
+        lines += ["", f"### Figures ({env}, prior {next(iter(r['priors']))})", ""]
+        for name, file in r["figures"].items():
+            lines.append(f"Fig. {name}:\n\n![Fig. {name}](results/{file})\n")
+        lines += [f"- {n}" for n in r["notes"]]
+    return "\n".join(lines) + "\n"
+
+
+def main(args: PaperArgs) -> int:
+    enable_compile_cache()
+    p = plan(args)
+    figdir = os.path.join(args.out, "results")
+    os.makedirs(figdir, exist_ok=True)
+    t0 = time.time()
+    log = lambda m: print(m, flush=True)
+    results = [env_results(args, p, env, figdir, log) for env in p.envs]
+    text = page(args, p, results, time.time() - t0)
+    with open(os.path.join(args.out, "results.md"), "w") as f:
+        f.write(text)
+    with open(os.path.join(args.out, "results", "results.json"), "w") as f:
+        json.dump(results, f, indent=1, default=lambda o: np.asarray(o).tolist())
+    log(text)
+    log(f"wrote {os.path.join(args.out, 'results.md')} ({(time.time() - t0) / 60:.1f} min)")
+    failed = any(res["compare"].get("errors") for r in results for res in r["priors"].values())
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(tyro.cli(PaperArgs)))
