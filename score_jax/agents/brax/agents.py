@@ -32,6 +32,7 @@ from score_jax.agents.base import Algorithm, BuildContext, OffPolicyAlgorithm, d
 from score_jax.agents.brax import variants
 from score_jax.agents.brax.config import SingleAgentConfig
 from score_jax.agents.brax.flat_env import BraxFlatEnv
+from score_jax.networks.actor import default_offset
 
 NAN = float("nan")
 
@@ -43,7 +44,7 @@ PPO_METRICS = ("updates", "critic_loss", "actor_loss", "entropy", "eval_return")
 def make_sac(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
     """brax SAC (tanh-normal policy over the flat action, twin Q, learned temperature)."""
     factory = functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=tuple(sc.hidden))
-    return build(sc, ctx, "sac", "sac", factory, mlp_head_mask)
+    return build(sc, ctx, "sac", "sac", factory, mlp_head_mask, mlp_start)
 
 
 def make_ppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
@@ -54,7 +55,52 @@ def make_ppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
         policy_hidden_layer_sizes=hidden,
         value_hidden_layer_sizes=hidden,
     )
-    return build(sc, ctx, "ppo", "ppo", factory, mlp_head_mask)
+    return build(sc, ctx, "ppo", "ppo", factory, mlp_head_mask, mlp_start)
+
+
+def _last_layer(params) -> str:
+    """Name of the output layer of brax's MLP policy (``hidden_<L>``)."""
+    return max(params["params"], key=lambda name: int(name.split("_")[-1]))
+
+
+def mlp_start(space, prior: np.ndarray, sc: SingleAgentConfig) -> Callable:
+    """``start(params) -> params``: the initial parameters of brax's tanh-normal MLP policy
+    (``[..., 2 total_dim]`` = flat means, then raw scales) with the default prior.
+
+    The output layer's kernel is scaled by ``sc.head_init_scale`` and the mean bias of the
+    flat columns of the sub-spaces marked in ``prior [n]`` set to ``atanh(default)`` (the
+    offset SCORE's actors add, ``networks.actor.default_offset``): a fresh policy's
+    deterministic action ``tanh(mean)`` is the default on those columns (a discrete dim's
+    flat column lands on its default grid value, where ``BraxFlatEnv`` snaps it) and
+    mid-range on the others. The bias is a parameter, so the offset trains like the rest.
+    """
+    cols = variants.flat_columns(space, prior)
+    default = np.asarray(default_offset(space.flatten(space.default_action())))
+    offset = np.concatenate([np.where(cols, default, 0.0), np.zeros(space.total_dim)])
+
+    def start(params):
+        last = _last_layer(params)
+        layer = params["params"][last]
+        layer = {"kernel": layer["kernel"] * sc.head_init_scale, "bias": layer["bias"] + offset}
+        return {**params, "params": {**params["params"], last: layer}}
+
+    return start
+
+
+def starting_at(factory: Callable, start: Callable) -> Callable:
+    """``factory`` whose policy network's ``init`` passes through ``start(params) -> params``
+    (how the brax baselines get the default prior and the small output layer)."""
+
+    def make(*args, **kwargs):
+        nets = factory(*args, **kwargs)
+        init = nets.policy_network.init
+        return nets.replace(
+            policy_network=brax_networks.FeedForwardNetwork(
+                init=lambda key: start(init(key)), apply=nets.policy_network.apply
+            )
+        )
+
+    return make
 
 
 def mlp_head_mask(space, unseen: np.ndarray, params) -> dict:
@@ -62,7 +108,7 @@ def mlp_head_mask(space, unseen: np.ndarray, params) -> dict:
     unseen sub-spaces' flat dims in its last Dense layer (``hidden_<L>``)."""
     cols = np.tile(variants.flat_columns(space, unseen), 2)
     layers = params["params"]
-    last = max(layers, key=lambda name: int(name.split("_")[-1]))
+    last = _last_layer(params)
     return {
         "params": {
             name: (
@@ -115,9 +161,12 @@ def build(
     loop: str,
     factory: Callable,
     head_mask: Callable,
+    start: Callable,
 ) -> Algorithm:
     """An ``Algorithm`` trained by brax's ``loop`` ("sac" | "ppo") with networks from ``factory``.
 
+    ``start(space, prior [n], sc) -> (params -> params)``: the policy's initial parameters with
+    the default prior of the sub-spaces marked in ``prior`` (``mlp_start``, ``hppo.hppo_start``).
     ``policy(agent) -> act_fn(env_state [E], key) -> [E, n_agents, max_dim]``: the deterministic
     flat action, un-flattened, rows of the controlled sub-spaces.
     """
@@ -125,6 +174,11 @@ def build(
     variants.check_variant(sc.transfer_variant)
     idx = np.asarray(ctx.agent_index)
     seen = variants.seen_mask(space, idx)
+    # The network covers every sub-space; the ones this run does not control follow the
+    # switch too (a fixed-width run has no untrained new actors: ctx.prior is all one value).
+    prior = np.full(space.n, bool(ctx.prior_mask.all()))
+    prior[idx] = ctx.prior_mask
+    factory = starting_at(factory, start(space, prior, sc))
     normalize = running_statistics.normalize if sc.normalize_observations else (lambda x, y: x)
     nets = factory(env.observation_size, space.total_dim, preprocess_observations_fn=normalize)
     dist = nets.parametric_action_distribution

@@ -58,8 +58,11 @@ def per_agent_input(obs: jax.Array, action: jax.Array) -> jax.Array:
 
 
 def marl_consts(m: MarlConfig, ctx: BuildContext) -> AgentConsts:
-    """Per-agent masks, grid sizes, entropy targets and defaults (no frozen critic inputs)."""
-    return agent_consts(ctx.space, ctx.agent_index, ctx.width, None, m.entropy_targets)
+    """Per-agent masks, grid sizes, entropy targets and defaults with the agents' prior
+    (``ctx.prior_mask``; no frozen critic inputs)."""
+    return agent_consts(
+        ctx.space, ctx.agent_index, ctx.width, None, m.entropy_targets, ctx.prior_mask
+    )
 
 
 def sac_hyper(m: MarlConfig, env) -> SACHyper:
