@@ -24,7 +24,8 @@ class AlgorithmEntry:
     ``in_process``: trained by the shared off-policy trainer (resumable), not brax's loop;
     ``grows``: its runs can grow by unseen sub-spaces (``Algorithm.grow``; checked before any
     work by ``score-transfer``); ``fixed_width``: its network has heads for every sub-space of
-    the full space, so growing adds no new actors (the brax baselines)."""
+    the full space, so growing adds no new actors (the brax baselines: a subset run starts the
+    heads of the sub-spaces it does not control untrained, without the default prior)."""
 
     settings: str
     builder: Builder | str

@@ -118,6 +118,20 @@ def test_grown_new_actors_start_at_the_default_only_when_asked(algo):
             np.testing.assert_allclose(a, 0.0, atol=0.05, err_msg=algo)
 
 
+@pytest.mark.parametrize("algo", ("ppo", "hppo"))
+def test_fixed_width_subset_run_starts_its_unseen_heads_untrained(algo):
+    """The heads of sub-spaces a subset run does not control play the new sub-spaces' part
+    after transfer (§4.3): they start mid-range, the controlled ones at their defaults."""
+    algo_ = build(algo, np.ones(2, bool), agent_index=(1, 2))  # a unseen
+    nets, (normalizer, policy, _) = algo_.networks, algo_.off_policy.init(jax.random.PRNGKey(0))
+    flat = nets.parametric_action_distribution.mode(
+        nets.policy_network.apply(normalizer, policy, OBS[:16])
+    )
+    action = np.asarray(SPACE.unflatten(flat))
+    np.testing.assert_allclose(action[:, 0, :2], 0.0, atol=0.05)
+    np.testing.assert_allclose(action[:, 1, :3], -0.5, atol=0.05)
+
+
 def test_prior_agents_and_the_resolved_block():
     names = list(SPACE.names)
     new_a = TransferSpec("src", ("a",))
@@ -133,7 +147,8 @@ def test_prior_agents_and_the_resolved_block():
         False,
         False,
     ]
-    assert on("ppo", new_a) == [True, True, True]  # fixed width: no new actors
+    # fixed width: the new sub-spaces' heads come from the subset run, untrained there
+    assert on("ppo", new_a) == [False, True, True]
     # a spec saved before new_actor_prior existed gave new actors the prior
     old = {"source": "src", "new": ["a"], "finetune_old_actors": False}
     assert TransferSpec.from_dict(old).new_actor_prior

@@ -47,7 +47,7 @@ class TransferArgs:
     ``score-train --default-prior``) instead of untrained (mid-range, uniform choices; §4.3),
     which lifts the Initial return towards the source run's. SCORE, ISAC, MAAC: actor offsets;
     QMIX: the new agents' candidate grid and Q head start. Refused for the fixed-width sac, ppo
-    and hppo, which add no actors."""
+    and hppo, which add no actors (their subset run started the unseen heads untrained)."""
     compare_scratch: bool = False
     """Also train the same algorithm from scratch on the target space with the same budget, and
     plot both."""

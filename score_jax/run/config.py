@@ -219,15 +219,17 @@ class TransferSpec:
 def prior_agents(cfg: TrainConfig, names, transfer: TransferSpec | None = None):
     """``[n]`` bool: which of the agents (sub-space ``names``) start at their defaults.
 
-    Every agent follows ``cfg.default_prior``, except the new agents of a transfer run of an
-    algorithm that adds actors for them (not the fixed-width brax baselines, whose heads of
-    every sub-space were already trained), which follow ``transfer.new_actor_prior``.
+    Every agent follows ``cfg.default_prior``, except the new agents of a transfer run, which
+    follow ``transfer.new_actor_prior``; for a fixed-width baseline (brax SAC / PPO / H-PPO)
+    they are False: their heads come from the subset run, which starts the heads of the
+    sub-spaces it does not control without the prior (``agents.brax.agents.build``).
     """
     old = bool(cfg.default_prior)
-    if transfer is None or registry.entry(cfg.algo).fixed_width:
+    if transfer is None:
         return np.full(len(names), old)
+    new_prior = transfer.new_actor_prior and not registry.entry(cfg.algo).fixed_width
     new = set(transfer.new)
-    return np.asarray([transfer.new_actor_prior if n in new else old for n in names], bool)
+    return np.asarray([new_prior if n in new else old for n in names], bool)
 
 
 @dataclasses.dataclass(frozen=True)

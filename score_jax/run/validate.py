@@ -506,8 +506,8 @@ def validate_transfer_args(args) -> list[str]:
     ):
         problems.append(
             f"--new-actor-prior: {src.algo!r} is a fixed-width baseline, so the transfer adds no "
-            "new actors (its heads of every sub-space trained in the subset run, under "
-            "--single.transfer-variant)"
+            "new actors: the new sub-spaces' heads come from the subset run, which started them "
+            "untrained (and trained them as --single.transfer-variant says)"
         )
     run_dir = transfer_run_dir(args)
     if os.path.abspath(run_dir) == os.path.abspath(args.checkpoint):

@@ -1,7 +1,8 @@
 """Single-agent baselines trained by brax (§5.1): ``--algo sac`` and ``--algo ppo``.
 
 The composite space is flattened to one ``[total_dim]`` action (``agents.brax.flat_env``) and
-``brax.training.agents.sac.train`` / ``ppo.train`` train it unchanged; H-PPO
+``brax.training.agents.sac.train`` / ``ppo.train`` train it unchanged, from a policy whose
+output layer starts small and, with the default prior, at the defaults (``mlp_start``); H-PPO
 (``agents.brax.hppo``) reuses the PPO loop with its own networks. brax runs its own loop, so
 these algorithms plug into the run layer through ``Algorithm.train_external`` (the run layer's
 external driver writes the metrics, shows progress and checkpoints the final policy).
@@ -174,9 +175,10 @@ def build(
     variants.check_variant(sc.transfer_variant)
     idx = np.asarray(ctx.agent_index)
     seen = variants.seen_mask(space, idx)
-    # The network covers every sub-space; the ones this run does not control follow the
-    # switch too (a fixed-width run has no untrained new actors: ctx.prior is all one value).
-    prior = np.full(space.n, bool(ctx.prior_mask.all()))
+    # The network covers every sub-space. The heads of those a subset run does not control
+    # start without the prior: they are what transfer.py later fine-tunes as the new
+    # sub-spaces' policies, which start untrained (§4.3), as the new actors of SCORE do.
+    prior = np.zeros(space.n, bool)
     prior[idx] = ctx.prior_mask
     factory = starting_at(factory, start(space, prior, sc))
     normalize = running_statistics.normalize if sc.normalize_observations else (lambda x, y: x)

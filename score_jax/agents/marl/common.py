@@ -111,7 +111,8 @@ def init_sac_state(
 def grow_sac(src: SACState, template: SACState, p, key: jax.Array) -> SACState:
     """Transfer (§4.3) for ISAC / MAAC: old agents keep their actors, per-agent critics and
     temperatures, new agents start fresh, shared critic parts (MAAC's attention) are kept;
-    optimiser states and constants are the grown run's fresh ones."""
+    optimiser states and constants are the grown run's fresh ones (so whether a new actor has
+    the default prior is the grown run's ``ctx.prior``, as for SCORE)."""
     rows = agent_rows(p, src.log_alpha.shape[0])
     return template.replace(
         actor=grow_stacked(src.actor, template.actor, p),

@@ -239,7 +239,7 @@ def qmix_optimizer(m: MarlConfig, trainable=None) -> optax.GradientTransformatio
 def grow_qmix(src: QMIXState, template: QMIXState, p, key: jax.Array) -> QMIXState:
     """Transfer (§4.3): old agents keep their Q networks and mixer heads W1_i, new ones start
     fresh, the shared mixer parts are kept; candidates, optimiser and epsilon are the grown
-    run's."""
+    run's (a new agent without the default prior: a grid centred mid-range, no Q head start)."""
     return template.replace(
         params=grow_stacked(src.params, template.params, p),
         target=grow_stacked(src.target, template.target, p),
