@@ -23,12 +23,15 @@ class AlgorithmEntry:
     ``single``); ``builder``: the builder or its ``"module:function"`` path;
     ``in_process``: trained by the shared off-policy trainer (resumable), not brax's loop;
     ``grows``: its runs can grow by unseen sub-spaces (``Algorithm.grow``; checked before any
-    work by ``score-transfer``)."""
+    work by ``score-transfer``); ``fixed_width``: its network has heads for every sub-space of
+    the full space, so growing adds no new actors (the brax baselines: a subset run starts the
+    heads of the sub-spaces it does not control untrained, without the default prior)."""
 
     settings: str
     builder: Builder | str
     in_process: bool = True
     grows: bool = True
+    fixed_width: bool = False
 
 
 _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
@@ -39,9 +42,15 @@ _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
         "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg", grows=False),
         "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac"),
         "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix"),
-        "sac": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_sac", in_process=False),
-        "ppo": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_ppo", in_process=False),
-        "hppo": AlgorithmEntry("single", "score_jax.agents.brax.hppo:make_hppo", in_process=False),
+        "sac": AlgorithmEntry(
+            "single", "score_jax.agents.brax.agents:make_sac", in_process=False, fixed_width=True
+        ),
+        "ppo": AlgorithmEntry(
+            "single", "score_jax.agents.brax.agents:make_ppo", in_process=False, fixed_width=True
+        ),
+        "hppo": AlgorithmEntry(
+            "single", "score_jax.agents.brax.hppo:make_hppo", in_process=False, fixed_width=True
+        ),
     },
 )
 

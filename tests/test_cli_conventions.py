@@ -158,6 +158,7 @@ def test_config_json_and_checkpoint_record_resolved_presets_and_provenance(track
     assert resolved["action_repeat"] == 1 and resolved["exploration_hold"] == 1
     assert resolved["checkpoint_every"] == 400 and resolved["env_steps"] == 400
     assert resolved["agents"] == ["a", "b", "c"] and resolved["reward_scale"] == 1.0
+    assert resolved["default_prior"] == ["a", "b", "c"] and config["default_prior"] is True
     assert all(v is not None for v in resolved.values())
     prov = config["provenance"]
     assert {"jax", "flax", "brax", "mujoco"} <= {k for k, v in prov["packages"].items() if v}

@@ -83,6 +83,26 @@ def test_grown_critic_with_new_agent_masked_equals_restored(subset_run, grown):
     assert float(jnp.min(jnp.linalg.norm(c[:2] - c[2], axis=-1))) > 1e-3
 
 
+def test_new_actors_start_untrained_unless_asked(subset_run, grown):
+    """§4.3: the new actor of c starts untrained (~uniform choices); --new-actor-prior starts it
+    at c's default choice (index 2, normalised 0) like the old actors' prior."""
+    run, p, agent = grown
+    obs = jax.random.uniform(jax.random.PRNGKey(4), (512, 4), minval=-1, maxval=1)
+    share = lambda a: float(jnp.mean(jnp.abs(a[:, 2, 0]) < 1e-3))  # c played at its default
+    policy = run.algo.networks.policy_fn
+    assert agent.consts.prior_agents.tolist() == [True, True, False]
+    assert share(policy(agent.actor, agent.consts, obs, jax.random.PRNGKey(5))[0]) < 0.4
+    spec = TransferSpec(subset_run.run_dir, ("c",), new_actor_prior=True)
+    cfg = dataclasses.replace(subset_run.config, subspaces="a,b,c")
+    primed = build(cfg, None, "/tmp/unused", restoring=True, log=lambda *a: None, transfer=spec)
+    template = primed.for_seed(0).trainer.init(jax.random.PRNGKey(1)).agent
+    new_c = agent.consts.critic_inputs.c[2:]
+    agent = grow_agent(subset_run.state.agent, template, p, new_c, jax.random.PRNGKey(2))
+    assert agent.consts.prior_agents is None  # every actor acts around its default
+    assert share(policy(agent.actor, agent.consts, obs, jax.random.PRNGKey(5))[0]) > 0.65
+    assert share(policy(agent.actor, agent.consts, obs, jax.random.PRNGKey(5), True)[0]) == 1.0
+
+
 def test_frozen_parts_are_bitwise_unchanged_after_a_finetuning_step(subset_run, grown):
     run, p, agent = grown
     batch = replay_sample(subset_run.state.buffer, jax.random.PRNGKey(1), 64)
@@ -124,6 +144,10 @@ def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path):
     assert np.isfinite(result["initial"]["mean"]) and np.isfinite(result["converge"]["mean"])
     saved = json.load(open(out / "transfer.json"))
     assert saved["initial"] == result["initial"]
+    # the new actor of c started untrained: only a and b act around their defaults
+    config = json.load(open(out / "config.json"))
+    assert config["resolved"]["default_prior"] == ["a", "b"] and config["default_prior"]
+    assert config["transfer"]["new_actor_prior"] is False
     assert (out / "transfer.png").stat().st_size > 10_000
     # the fine-tuned run is an ordinary run over all sub-spaces: it restores and evaluates
     restored = restore_run(str(out), log=lambda *a: None).for_seed(0)

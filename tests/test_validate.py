@@ -229,6 +229,24 @@ def test_transfer_names_missing_subspaces(tmp_path, capsys, no_work):
     assert not (tmp_path / "src-transfer").exists()
 
 
+def test_new_actor_prior_is_refused_for_a_fixed_width_baseline(tmp_path, no_work):
+    """A fixed-width run has no new actors to start at their defaults: --new-actor-prior is
+    refused with the reason for a PPO run and accepted for a SCORE run."""
+    refused = {}
+    for algo in ("ppo", "score"):
+        run_dir = tmp_path / algo
+        cfg = TrainConfig(env="probe", algo=algo, run_dir=str(run_dir), subspaces="a,b")
+        ckpt = Checkpointer(str(run_dir))
+        ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
+        ckpt.close()
+        dump_json(str(run_dir / "config.json"), to_dict(cfg))
+        args = TransferArgs(checkpoint=str(run_dir), new_actor_prior=True)
+        problems = validate_module.validate_transfer_args(args)
+        refused[algo] = [p for p in problems if p.startswith("--new-actor-prior")]
+    assert len(refused["ppo"]) == 1 and "fixed-width baseline" in refused["ppo"][0]
+    assert refused["score"] == []
+
+
 def test_command_lines_exit_2_without_traceback(tmp_path):
     """The real processes: train.py, transfer.py and score-robustness."""
     env = {**os.environ, "PYTHONPATH": ROOT}

@@ -102,6 +102,10 @@ class BuildContext:
       updates_per_step: gradient updates per vectorised step of the off-policy trainer.
       trainable: in a transfer run (§4.3), ``[n_agents]`` True for the agents whose actors
         train (new sub-spaces, or all with ``finetune_old_actors``); None in an ordinary run.
+      prior: ``[n_agents]`` bool, the agents whose untrained policy starts at its sub-space's
+        default (``TrainConfig.default_prior``; in a transfer run the new agents follow
+        ``TransferSpec.new_actor_prior``); None = every agent. Without the prior a policy
+        starts mid-range (continuous dims) with uniform choices (discrete dims).
       log: where builders report progress.
     """
 
@@ -115,6 +119,7 @@ class BuildContext:
     num_envs: int = 8
     updates_per_step: int = 1
     trainable: np.ndarray | None = None
+    prior: np.ndarray | None = None
     log: Callable[[str], None] = print
 
     @property
@@ -124,6 +129,16 @@ class BuildContext:
     @property
     def n_agents(self) -> int:
         return len(self.agent_index)
+
+    @property
+    def prior_mask(self) -> np.ndarray:
+        """``[n_agents]`` bool: ``prior``, every agent when None."""
+        if self.prior is None:
+            return np.ones(self.n_agents, bool)
+        prior = np.asarray(self.prior, bool)
+        if prior.shape != (self.n_agents,):
+            raise ValueError(f"prior has shape {prior.shape}, expected ({self.n_agents},)")
+        return prior
 
 
 @struct.dataclass
@@ -136,7 +151,10 @@ class AgentConsts:
       valid: ``[n]`` bool, agents that exist (False for padding when the agent axis is grown).
       target_entropy: ``[n]`` per-agent entropy target for the temperature alpha.
       critic_inputs: algorithm-specific frozen inputs of the critic (SCORE: HVAE params, c_i).
-      default_action: ``[n, w]`` normalised default sub-actions, the actors' prior (None = none).
+      default_action: ``[n, w]`` normalised default sub-actions, the actors' prior (None = no
+        agent has one: every actor starts mid-range with uniform logits).
+      prior_agents: ``[n]`` bool, the agents that act around ``default_action`` (None = all);
+        set only when some do and some do not (a transfer run's untrained new actors).
     """
 
     dim_mask: jax.Array
@@ -145,6 +163,7 @@ class AgentConsts:
     target_entropy: jax.Array
     critic_inputs: Any = None
     default_action: Any = None
+    prior_agents: Any = None
 
 
 def target_entropy(
@@ -165,9 +184,19 @@ def agent_consts(
     width: int,
     critic_inputs=None,
     entropy: tuple[float, float] = (0.1, -1.0),
+    prior=None,
 ) -> AgentConsts:
-    """Per-agent arrays for the sub-spaces ``agent_index`` of ``space``, padded to ``width``."""
+    """Per-agent arrays for the sub-spaces ``agent_index`` of ``space``, padded to ``width``.
+
+    ``prior``: ``[n]`` bool, the agents whose actors act around their sub-space's default
+    (``BuildContext.prior_mask``); None = all. The defaults are kept only when some agent
+    uses them, and the mask only when it is mixed, so the state of a run where every actor
+    has the prior has the same structure as before the mask existed.
+    """
     idx = np.asarray(agent_index)
+    prior = np.ones(len(idx), bool) if prior is None else np.asarray(prior, bool)
+    if prior.shape != idx.shape:
+        raise ValueError(f"prior has shape {prior.shape}, expected {idx.shape}")
     dim_mask = pad_width(jnp.asarray(space.dim_mask[idx]), width, False)
     n_choices = pad_width(jnp.asarray(space.n_choices[idx]), width, 0)
     default = pad_width(jnp.asarray(space.default_action())[idx], width, 0.0)
@@ -177,7 +206,8 @@ def agent_consts(
         jnp.ones(len(idx), bool),
         target_entropy(dim_mask, n_choices, *entropy),
         critic_inputs,
-        default,
+        default if prior.any() else None,
+        None if prior.all() else jnp.asarray(prior),
     )
 
 

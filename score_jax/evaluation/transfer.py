@@ -42,6 +42,12 @@ class TransferArgs:
     """Where the fine-tuning run goes; None = <checkpoint>-transfer."""
     finetune_old_actors: bool = False
     """Also fine-tune the actors of the sub-spaces seen in training (default: frozen)."""
+    new_actor_prior: bool = False
+    """The new sub-spaces' actors start at their defaults (the default prior of
+    ``score-train --default-prior``) instead of untrained (mid-range, uniform choices; §4.3),
+    which lifts the Initial return towards the source run's. SCORE, ISAC, MAAC: actor offsets;
+    QMIX: the new agents' candidate grid and Q head start. Refused for the fixed-width sac, ppo
+    and hppo, which add no actors (their subset run started the unseen heads untrained)."""
     compare_scratch: bool = False
     """Also train the same algorithm from scratch on the target space with the same budget, and
     plot both."""
@@ -91,7 +97,10 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
         eval_episodes=args.eval_episodes,
     )
     spec = TransferSpec(
-        os.path.abspath(args.checkpoint), tuple(new_names), args.finetune_old_actors
+        os.path.abspath(args.checkpoint),
+        tuple(new_names),
+        args.finetune_old_actors,
+        args.new_actor_prior,
     )
     initial = {}
 

@@ -33,10 +33,13 @@ class ActorConfig:
       log_std_max: upper end of the Gaussian log-std.
       gumbel_temperature: tau of the Gumbel-softmax relaxation (gradient path only).
 
-    Actors act around the sub-space's ``default`` (the safe physical value a failed
+    With the default prior (``TrainConfig.default_prior``, the agents' ``AgentConsts``)
+    actors act around the sub-space's ``default`` (the safe physical value a failed
     controller falls back to): the default is a fixed offset of the Gaussian mean and of the
     logits (``sample_actions(..., default=...)``), and the output layer starts near zero, so an
     untrained deterministic actor plays the default action and exploration starts around it.
+    Without it there is no offset: an untrained actor plays ``tanh(~0)`` (mid-range) on
+    continuous dims and samples discrete dims from ~uniform logits.
     """
 
     hidden: tuple[int, ...] = (128, 128)
@@ -116,6 +119,18 @@ class Actors(nn.Module):
         return ActorOutput(mean, log_std, logits)
 
 
+def default_offset(default: jax.Array) -> jax.Array:
+    """``atanh(default)``, clipped inside (-1, 1): the pre-tanh mean at which a tanh-Gaussian
+    plays the normalised ``default`` (the continuous part of the default prior)."""
+    return jnp.arctanh(jnp.clip(default, -0.995, 0.995))
+
+
+def default_choice(default: jax.Array, n_choices: jax.Array) -> jax.Array:
+    """The grid index (float) nearest the normalised ``default`` of a dim with ``n_choices``
+    values (the choice the default prior's logit bonus goes to)."""
+    return jnp.round((default + 1.0) * 0.5 * jnp.maximum(n_choices - 1, 1))
+
+
 def _grid(n_choices: jax.Array, max_choices: int) -> tuple[jax.Array, jax.Array]:
     """Normalised grid values ``[..., C]`` (index/steps*2-1, as ``CompositeSpace``) and validity."""
     idx = jnp.arange(max_choices, dtype=jnp.float32)
@@ -132,6 +147,7 @@ def sample_actions(
     temperature: float = 1.0,
     default: jax.Array | None = None,
     prior_logit: float = 0.0,
+    prior: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """Sample all agents' actions and their log-probs (reparameterised, differentiable).
 
@@ -153,6 +169,8 @@ def sample_actions(
         by ``atanh(default)`` and the default grid choice of a discrete dim gets ``prior_logit``
         extra logit, so a zero actor output plays the default (``ActorConfig``).
       prior_logit: logit bonus of the default choice of discrete dims.
+      prior: optional ``[n]`` bool, the agents that act around ``default`` (None = all); the
+        others get neither offset (an untrained transfer run's new actors, §4.3).
 
     Returns:
       ``(action [n, width], log_prob [n])``: padded columns exactly 0, log-probs summed over
@@ -165,8 +183,9 @@ def sample_actions(
     key_normal, key_gumbel = jax.random.split(key)
 
     mean = out.mean
+    on = 1.0 if prior is None else jnp.asarray(prior, mean.dtype)[:, None]  # [n, 1] or scalar
     if default is not None:
-        mean = mean + jnp.arctanh(jnp.clip(default, -0.995, 0.995))
+        mean = mean + on * default_offset(default)
 
     # Continuous: tanh-Gaussian.
     std = jnp.exp(out.log_std)
@@ -183,10 +202,9 @@ def sample_actions(
     grid, valid = _grid(n_choices[..., :dw], C)
     out_logits = out.logits
     if default is not None:  # the grid index nearest the default gets the prior bonus
-        default_index = jnp.round(
-            (default[..., :dw] + 1.0) * 0.5 * jnp.maximum(n_choices[..., :dw] - 1, 1)
-        )
-        out_logits = out_logits + prior_logit * (jnp.arange(C) == default_index[..., None])
+        default_index = default_choice(default[..., :dw], n_choices[..., :dw])
+        bonus = prior_logit * (jnp.arange(C) == default_index[..., None])
+        out_logits = out_logits + (bonus if prior is None else on[..., None] * bonus)
     logits = jnp.where(valid, out_logits, -1e9)  # exp underflows to exactly 0 in float32
     log_p = jax.nn.log_softmax(logits, -1)
     # One grid value per column (no discrete dims in the space, C == 1): the choice is certain,
@@ -228,7 +246,8 @@ def actor_policy(
 
     ``obs [B, obs] -> (action [B, n, w], log_prob [B, n])``: the stacked ``actors`` applied to
     every observation, then ``sample_actions`` with ``consts`` (``sac.AgentConsts``: dim_mask,
-    n_choices, default_action, valid); agents that are not ``valid`` get action 0, log-prob 0.
+    n_choices, default_action, prior_agents, valid); agents that are not ``valid`` get action
+    0, log-prob 0.
     """
     out = jax.vmap(lambda o: actors.apply({"params": params}, o))(obs)
     keys = jax.random.split(key, obs.shape[0])
@@ -242,6 +261,7 @@ def actor_policy(
         cfg.gumbel_temperature,
         consts.default_action,
         cfg.prior_logit,
+        consts.prior_agents,
     )
     action, logp = jax.vmap(sample)(out, keys)
     valid = consts.valid[None, :]

@@ -17,7 +17,15 @@ from score_jax import registry
 from score_jax.agents.base import Algorithm, BuildContext
 from score_jax.run.best_policy import has_best, restore_best
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, saved_run_config
-from score_jax.run.config import RunSpec, TrainConfig, TransferSpec, from_dict, resolve, to_dict
+from score_jax.run.config import (
+    RunSpec,
+    TrainConfig,
+    TransferSpec,
+    from_dict,
+    prior_agents,
+    resolve,
+    to_dict,
+)
 from score_jax.run.episodes import EvalResult, make_evaluator
 from score_jax.run.external import ExternalTrainer
 from score_jax.run.provenance import provenance
@@ -170,6 +178,7 @@ def build(
         num_envs=cfg.off_policy.num_envs,
         updates_per_step=cfg.off_policy.updates_per_step,
         trainable=trainable_agents(env.space, agent_index, transfer),
+        prior=prior_agents(cfg, [env.space.names[i] for i in agent_index], transfer),
         log=log,
     )
     algo = registry.builder(cfg.algo)(cfg.algorithm_settings(), ctx)
@@ -191,11 +200,7 @@ def build(
 
 def saved_transfer(meta: dict) -> TransferSpec | None:
     t = meta.get("transfer")
-    return (
-        None
-        if t is None
-        else TransferSpec(t["source"], tuple(t["new"]), bool(t["finetune_old_actors"]))
-    )
+    return None if t is None else TransferSpec.from_dict(t)
 
 
 def restore_run(run_dir: str, log=print, policy: str = "last") -> Run:

@@ -14,6 +14,8 @@ import dataclasses
 import os
 from typing import Literal
 
+import numpy as np
+
 import envs
 from score_jax import registry
 from score_jax.agents.brax.config import SingleAgentConfig
@@ -88,6 +90,15 @@ class TrainConfig:
     action_width: int | None = None
     """Padded action width of every agent; None = the environment's full max_dim (so transfer
     can add sub-spaces of any width)."""
+    default_prior: bool = True
+    """Every algorithm's untrained policy starts at the sub-spaces' defaults (the safe values a
+    failed controller falls back to) and explores around them. SCORE, ISAC, MADDPG, MAAC: the
+    actors' Gaussian mean is offset by atanh(default) and the default choice's logit by
+    --score.actor.prior-logit / --marl.actor.prior-logit; SAC, PPO: the policy's output bias
+    starts at the same offsets of the flat action; H-PPO: its heads' biases (logit bonus
+    --single.prior-logit); QMIX: the candidate grid is centred on the default, whose Q starts
+    --marl.qmix-prior-q ahead. --no-default-prior: none of these; every policy starts
+    mid-range with uniform choices (QMIX: a grid centred mid-range, all Q equal)."""
     eval_episodes: int = 10
     """Episodes per evaluation (each a full season / episode)."""
     eval_every: int | None = None
@@ -183,12 +194,42 @@ class TransferSpec:
     """A fine-tuning run grown from a trained run (§4.3), set by ``transfer.py``.
 
     ``source``: the trained run's directory; ``new``: the sub-spaces that are new (their actors
-    train from scratch); ``finetune_old_actors``: also fine-tune the actors seen before.
+    train from scratch); ``finetune_old_actors``: also fine-tune the actors seen before;
+    ``new_actor_prior``: the new actors start at their sub-spaces' defaults (the default
+    prior); False = untrained, mid-range with uniform choices (§4.3).
     """
 
     source: str
     new: tuple[str, ...]
     finetune_old_actors: bool = False
+    new_actor_prior: bool = False
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TransferSpec:
+        """A saved spec (``dataclasses.asdict``); one saved before ``new_actor_prior`` existed
+        gave its new actors the default prior, so a missing key reads True."""
+        return cls(
+            d["source"],
+            tuple(d["new"]),
+            bool(d["finetune_old_actors"]),
+            bool(d.get("new_actor_prior", True)),
+        )
+
+
+def prior_agents(cfg: TrainConfig, names, transfer: TransferSpec | None = None):
+    """``[n]`` bool: which of the agents (sub-space ``names``) start at their defaults.
+
+    Every agent follows ``cfg.default_prior``, except the new agents of a transfer run, which
+    follow ``transfer.new_actor_prior``; for a fixed-width baseline (brax SAC / PPO / H-PPO)
+    they are False: their heads come from the subset run, which starts the heads of the
+    sub-spaces it does not control without the prior (``agents.brax.agents.build``).
+    """
+    old = bool(cfg.default_prior)
+    if transfer is None:
+        return np.full(len(names), old)
+    new_prior = transfer.new_actor_prior and not registry.entry(cfg.algo).fixed_width
+    new = set(transfer.new)
+    return np.asarray([new_prior if n in new else old for n in names], bool)
 
 
 @dataclasses.dataclass(frozen=True)

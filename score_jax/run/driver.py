@@ -109,7 +109,7 @@ def train(
             os.path.join(run_dir, "config.json"),
             {
                 **to_dict(cfg),
-                "resolved": resolved_config(cfg, run.spec, run.env, run.agent_index),
+                "resolved": resolved_config(cfg, run.spec, run.env, run.agent_index, transfer),
                 "seeds": list(run.seeds),
                 "provenance": provenance(),
                 "transfer": run.meta()["transfer"],

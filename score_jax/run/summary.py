@@ -18,7 +18,14 @@ import envs
 from envs.wrappers import with_action_repeat
 from score_jax import registry
 from score_jax.run.compile_cache import cache_status
-from score_jax.run.config import RunSpec, TrainConfig, default_run_dir, resolve
+from score_jax.run.config import (
+    RunSpec,
+    TrainConfig,
+    TransferSpec,
+    default_run_dir,
+    prior_agents,
+    resolve,
+)
 from score_jax.run.writers import check_kinds
 
 
@@ -129,15 +136,21 @@ def announce(cfg: TrainConfig, run_dir: str | None = None, log=print) -> RunSpec
     return spec
 
 
-def resolved_config(cfg: TrainConfig, spec: RunSpec, env, agent_index) -> dict:
+def resolved_config(
+    cfg: TrainConfig, spec: RunSpec, env, agent_index, transfer: TransferSpec | None = None
+) -> dict:
     """Every preset of ``cfg`` as the number the run uses: ``spec`` (budget, evaluation and
     checkpoint intervals, action repeat, exploration hold, width), the env steps of the budget,
-    the controlled sub-spaces and the learners' reward scale. ``env``: the run's
-    (action-repeated) environment."""
+    the controlled sub-spaces, those whose policy starts at the default (``default_prior``,
+    ``prior_agents``: a transfer run's new agents may differ) and the learners' reward scale.
+    ``env``: the run's (action-repeated) environment."""
+    names = [env.space.names[int(i)] for i in agent_index]
+    prior = prior_agents(cfg, names, transfer)
     out = {
         **spec.to_dict(),
         "env_steps": spec.total_steps * spec.action_repeat,
-        "agents": [env.space.names[int(i)] for i in agent_index],
+        "agents": names,
+        "default_prior": [n for n, on in zip(names, prior, strict=True) if on],
     }
     settings = cfg.algorithm_settings()
     for field in ("reward_scale", "reward_scaling"):  # SAC-family / brax settings

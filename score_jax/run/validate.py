@@ -416,13 +416,7 @@ def resume_config(
     report = {n: getattr(cli if given(n) else saved, n) for n in REPORT_OPTIONS}
     report.update({n: getattr(cli, n) for n in LAUNCH_OPTIONS})
     cfg = dataclasses.replace(saved, resume=run_dir, run_dir=run_dir, total_steps=total, **report)
-    transfer = None
-    if transfer_dict is not None:
-        transfer = TransferSpec(
-            transfer_dict["source"],
-            tuple(transfer_dict["new"]),
-            bool(transfer_dict["finetune_old_actors"]),
-        )
+    transfer = None if transfer_dict is None else TransferSpec.from_dict(transfer_dict)
     if not steps and not problems:
         if transfer is not None:
             problems.append(
@@ -484,7 +478,8 @@ def transfer_run_dir(args) -> str:
 
 def validate_transfer_args(args) -> list[str]:
     """Problems of ``score-transfer`` arguments (``checkpoint``, ``env``, ``subspaces``,
-    ``total_steps``, ``run_dir``, ``eval_episodes``, ``compare_scratch``): the source run, the
+    ``total_steps``, ``run_dir``, ``eval_episodes``, ``compare_scratch``, ``new_actor_prior``:
+    only for an algorithm that adds actors): the source run, the
     target sub-spaces (known, not empty, every trained one included, at least one new) and the
     fine-tuning run's own configuration and directories."""
     src, problems = _source_run("--checkpoint", args.checkpoint)
@@ -504,6 +499,16 @@ def validate_transfer_args(args) -> list[str]:
         ]
     if args.env is not None and args.env != src.env:
         problems.append(f"--env {args.env}: the checkpoint was trained on {src.env!r}")
+    if (
+        args.new_actor_prior
+        and src.algo in registry.algorithm_names()
+        and registry.entry(src.algo).fixed_width
+    ):
+        problems.append(
+            f"--new-actor-prior: {src.algo!r} is a fixed-width baseline, so the transfer adds no "
+            "new actors: the new sub-spaces' heads come from the subset run, which started them "
+            "untrained (and trained them as --single.transfer-variant says)"
+        )
     run_dir = transfer_run_dir(args)
     if os.path.abspath(run_dir) == os.path.abspath(args.checkpoint):
         problems.append(f"--run-dir {run_dir}: is the trained run's own directory")

@@ -1,7 +1,8 @@
 """Single-agent baselines trained by brax (§5.1): ``--algo sac`` and ``--algo ppo``.
 
 The composite space is flattened to one ``[total_dim]`` action (``agents.brax.flat_env``) and
-``brax.training.agents.sac.train`` / ``ppo.train`` train it unchanged; H-PPO
+``brax.training.agents.sac.train`` / ``ppo.train`` train it unchanged, from a policy whose
+output layer starts small and, with the default prior, at the defaults (``mlp_start``); H-PPO
 (``agents.brax.hppo``) reuses the PPO loop with its own networks. brax runs its own loop, so
 these algorithms plug into the run layer through ``Algorithm.train_external`` (the run layer's
 external driver writes the metrics, shows progress and checkpoints the final policy).
@@ -32,6 +33,7 @@ from score_jax.agents.base import Algorithm, BuildContext, OffPolicyAlgorithm, d
 from score_jax.agents.brax import variants
 from score_jax.agents.brax.config import SingleAgentConfig
 from score_jax.agents.brax.flat_env import BraxFlatEnv
+from score_jax.networks.actor import default_offset
 
 NAN = float("nan")
 
@@ -43,7 +45,7 @@ PPO_METRICS = ("updates", "critic_loss", "actor_loss", "entropy", "eval_return")
 def make_sac(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
     """brax SAC (tanh-normal policy over the flat action, twin Q, learned temperature)."""
     factory = functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=tuple(sc.hidden))
-    return build(sc, ctx, "sac", "sac", factory, mlp_head_mask)
+    return build(sc, ctx, "sac", "sac", factory, mlp_head_mask, mlp_start)
 
 
 def make_ppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
@@ -54,7 +56,52 @@ def make_ppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
         policy_hidden_layer_sizes=hidden,
         value_hidden_layer_sizes=hidden,
     )
-    return build(sc, ctx, "ppo", "ppo", factory, mlp_head_mask)
+    return build(sc, ctx, "ppo", "ppo", factory, mlp_head_mask, mlp_start)
+
+
+def _last_layer(params) -> str:
+    """Name of the output layer of brax's MLP policy (``hidden_<L>``)."""
+    return max(params["params"], key=lambda name: int(name.split("_")[-1]))
+
+
+def mlp_start(space, prior: np.ndarray, sc: SingleAgentConfig) -> Callable:
+    """``start(params) -> params``: the initial parameters of brax's tanh-normal MLP policy
+    (``[..., 2 total_dim]`` = flat means, then raw scales) with the default prior.
+
+    The output layer's kernel is scaled by ``sc.head_init_scale`` and the mean bias of the
+    flat columns of the sub-spaces marked in ``prior [n]`` set to ``atanh(default)`` (the
+    offset SCORE's actors add, ``networks.actor.default_offset``): a fresh policy's
+    deterministic action ``tanh(mean)`` is the default on those columns (a discrete dim's
+    flat column lands on its default grid value, where ``BraxFlatEnv`` snaps it) and
+    mid-range on the others. The bias is a parameter, so the offset trains like the rest.
+    """
+    cols = variants.flat_columns(space, prior)
+    default = np.asarray(default_offset(space.flatten(space.default_action())))
+    offset = np.concatenate([np.where(cols, default, 0.0), np.zeros(space.total_dim)])
+
+    def start(params):
+        last = _last_layer(params)
+        layer = params["params"][last]
+        layer = {"kernel": layer["kernel"] * sc.head_init_scale, "bias": layer["bias"] + offset}
+        return {**params, "params": {**params["params"], last: layer}}
+
+    return start
+
+
+def starting_at(factory: Callable, start: Callable) -> Callable:
+    """``factory`` whose policy network's ``init`` passes through ``start(params) -> params``
+    (how the brax baselines get the default prior and the small output layer)."""
+
+    def make(*args, **kwargs):
+        nets = factory(*args, **kwargs)
+        init = nets.policy_network.init
+        return nets.replace(
+            policy_network=brax_networks.FeedForwardNetwork(
+                init=lambda key: start(init(key)), apply=nets.policy_network.apply
+            )
+        )
+
+    return make
 
 
 def mlp_head_mask(space, unseen: np.ndarray, params) -> dict:
@@ -62,7 +109,7 @@ def mlp_head_mask(space, unseen: np.ndarray, params) -> dict:
     unseen sub-spaces' flat dims in its last Dense layer (``hidden_<L>``)."""
     cols = np.tile(variants.flat_columns(space, unseen), 2)
     layers = params["params"]
-    last = max(layers, key=lambda name: int(name.split("_")[-1]))
+    last = _last_layer(params)
     return {
         "params": {
             name: (
@@ -115,9 +162,12 @@ def build(
     loop: str,
     factory: Callable,
     head_mask: Callable,
+    start: Callable,
 ) -> Algorithm:
     """An ``Algorithm`` trained by brax's ``loop`` ("sac" | "ppo") with networks from ``factory``.
 
+    ``start(space, prior [n], sc) -> (params -> params)``: the policy's initial parameters with
+    the default prior of the sub-spaces marked in ``prior`` (``mlp_start``, ``hppo.hppo_start``).
     ``policy(agent) -> act_fn(env_state [E], key) -> [E, n_agents, max_dim]``: the deterministic
     flat action, un-flattened, rows of the controlled sub-spaces.
     """
@@ -125,6 +175,12 @@ def build(
     variants.check_variant(sc.transfer_variant)
     idx = np.asarray(ctx.agent_index)
     seen = variants.seen_mask(space, idx)
+    # The network covers every sub-space. The heads of those a subset run does not control
+    # start without the prior: they are what transfer.py later fine-tunes as the new
+    # sub-spaces' policies, which start untrained (§4.3), as the new actors of SCORE do.
+    prior = np.zeros(space.n, bool)
+    prior[idx] = ctx.prior_mask
+    factory = starting_at(factory, start(space, prior, sc))
     normalize = running_statistics.normalize if sc.normalize_observations else (lambda x, y: x)
     nets = factory(env.observation_size, space.total_dim, preprocess_observations_fn=normalize)
     dist = nets.parametric_action_distribution

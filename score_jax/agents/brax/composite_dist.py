@@ -22,6 +22,7 @@ import numpy as np
 from brax.training.distribution import ParametricDistribution
 
 from score_jax.core.spaces import CompositeSpace
+from score_jax.networks.actor import default_choice, default_offset
 
 _NEG = -1e9  # logit of a choice a dim does not have (finite: 0 * log p stays 0)
 
@@ -90,6 +91,22 @@ class CompositeDistribution(ParametricDistribution):
         self.disc_flat = np.asarray(disc_flat, np.int32)
         self.total_dim = f
         super().__init__(param_size=p, postprocessor=None, event_ndims=1, reparametrizable=False)
+
+    def prior_bias(self, prior: np.ndarray, prior_logit: float) -> np.ndarray:
+        """``[P]`` distribution parameters of the default prior (the offsets SCORE's actors add):
+        ``atanh(default)`` on the means of continuous dims and ``prior_logit`` on the default
+        choice's logit of discrete dims, for the sub-spaces marked in ``prior [n]``; 0
+        elsewhere (raw scales, the other logits, sub-spaces without the prior)."""
+        default = np.asarray(self.space.default_action())
+        out, p = np.zeros(self.param_size, np.float32), 0
+        for i, (s, size) in enumerate(zip(self.space.subspaces, self.head_sizes, strict=True)):
+            if prior[i] and s.kind == "continuous":
+                out[p : p + s.dim] = np.asarray(default_offset(default[i, : s.dim]))
+            elif prior[i]:
+                k = np.asarray(default_choice(default[i, : s.dim], s.n_choices)).astype(int)
+                out[p + np.arange(s.dim) * s.n_choices + k] = prior_logit
+            p += size
+        return out
 
     # -- parameters -> distribution ---------------------------------------------------------
     def create_dist(self, parameters: jax.Array) -> CompositeDist:

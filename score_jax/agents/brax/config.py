@@ -64,6 +64,14 @@ class SingleAgentConfig:
     """Hidden widths of the policy (H-PPO: its shared trunk) and of the value / Q networks."""
     head_hidden: int = 64
     """H-PPO: hidden width of each sub-actor head (one head per sub-action space)."""
+    head_init_scale: float = 0.01
+    """Scale of the policy's output layer's initial kernel (SAC / PPO: the MLP's last layer,
+    H-PPO: every head's), as SCORE's actors: a fresh policy outputs ~its bias, so where it
+    starts is set by ``--default-prior`` alone (the default, or mid-range and uniform)."""
+    prior_logit: float = 3.0
+    """H-PPO with ``--default-prior``: initial logit bonus of a discrete dim's default choice
+    (as SCORE's ``actor.prior_logit``); SAC / PPO see discrete dims as continuous flat columns
+    and start them at the default's value instead."""
     num_envs: int = 16
     """Parallel environments of brax's rollouts."""
     learning_rate: float = 3e-4

@@ -118,7 +118,31 @@ def hppo_head_mask(space, unseen: np.ndarray, params) -> dict:
     }
 
 
+def hppo_start(space, prior: np.ndarray, sc: SingleAgentConfig):
+    """``start(params) -> params``: the initial H-PPO policy parameters with the default prior:
+    every head's output kernel scaled by ``sc.head_init_scale`` and its bias offset by the
+    head's slice of ``CompositeDistribution.prior_bias`` (sub-spaces marked in ``prior [n]``:
+    tanh-normal mean at the default, logit bonus ``sc.prior_logit`` on the default choice; the
+    others start mid-range with uniform logits)."""
+    dist = CompositeDistribution(space)
+    bias = dist.prior_bias(prior, sc.prior_logit)
+    bounds = np.cumsum((0,) + dist.head_sizes)
+
+    def start(params):
+        layers = dict(params["params"])
+        for i in range(space.n):
+            head = layers[f"head_{i}"]
+            out = {
+                "kernel": head["out"]["kernel"] * sc.head_init_scale,
+                "bias": head["out"]["bias"] + bias[bounds[i] : bounds[i + 1]],
+            }
+            layers[f"head_{i}"] = {**head, "out": out}
+        return {**params, "params": layers}
+
+    return start
+
+
 def make_hppo(sc: SingleAgentConfig, ctx: BuildContext) -> Algorithm:
     """H-PPO on brax's PPO loop."""
     factory = make_hppo_networks(ctx.space, sc.hidden, sc.head_hidden)
-    return brax_agents.build(sc, ctx, "hppo", "ppo", factory, hppo_head_mask)
+    return brax_agents.build(sc, ctx, "hppo", "ppo", factory, hppo_head_mask, hppo_start)

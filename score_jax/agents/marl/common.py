@@ -58,8 +58,11 @@ def per_agent_input(obs: jax.Array, action: jax.Array) -> jax.Array:
 
 
 def marl_consts(m: MarlConfig, ctx: BuildContext) -> AgentConsts:
-    """Per-agent masks, grid sizes, entropy targets and defaults (no frozen critic inputs)."""
-    return agent_consts(ctx.space, ctx.agent_index, ctx.width, None, m.entropy_targets)
+    """Per-agent masks, grid sizes, entropy targets and defaults with the agents' prior
+    (``ctx.prior_mask``; no frozen critic inputs)."""
+    return agent_consts(
+        ctx.space, ctx.agent_index, ctx.width, None, m.entropy_targets, ctx.prior_mask
+    )
 
 
 def sac_hyper(m: MarlConfig, env) -> SACHyper:
@@ -108,7 +111,8 @@ def init_sac_state(
 def grow_sac(src: SACState, template: SACState, p, key: jax.Array) -> SACState:
     """Transfer (§4.3) for ISAC / MAAC: old agents keep their actors, per-agent critics and
     temperatures, new agents start fresh, shared critic parts (MAAC's attention) are kept;
-    optimiser states and constants are the grown run's fresh ones."""
+    optimiser states and constants are the grown run's fresh ones (so whether a new actor has
+    the default prior is the grown run's ``ctx.prior``, as for SCORE)."""
     rows = agent_rows(p, src.log_alpha.shape[0])
     return template.replace(
         actor=grow_stacked(src.actor, template.actor, p),

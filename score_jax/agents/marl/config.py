@@ -30,10 +30,15 @@ class MarlConfig(SACSettings):
     maddpg_noise: float = 0.1
     """MADDPG: std of the Gaussian exploration noise on continuous dims (normalised units)."""
     qmix_candidates: int = 32
-    """QMIX: K, candidate sub-actions per sub-space (the default plus a grid, see
-    ``qmix_candidates``)."""
+    """QMIX: K, candidate sub-actions per sub-space (a centre plus a grid around it: the default
+    with ``--default-prior``, else the mid-range point; see ``qmix_candidates``)."""
     qmix_radius: float = 1.0
-    """QMIX: the grid spans default +- radius per dim (normalised units, clipped to [-1, 1])."""
+    """QMIX: the grid spans centre +- radius per dim (normalised units, clipped to [-1, 1])."""
+    qmix_prior_q: float = 1.0
+    """QMIX with ``--default-prior``: initial head start of the default candidate's Q_i (the
+    output bias of the agent Q networks, reward-scaled units), so an untrained greedy agent
+    plays its default. The agent Q networks' output layer starts as small as the actors'
+    (``actor.head_init_scale``) either way: without the prior every candidate starts ~equal."""
     qmix_mixer_dim: int = 32
     """QMIX: width of the mixing network's hidden layer (its hypernetworks output these weights)."""
     qmix_eps_start: float = 1.0

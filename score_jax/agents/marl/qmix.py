@@ -1,11 +1,12 @@
 """QMIX (Rashid et al. 2018; §5.1) over discretised sub-action spaces.
 
 Each sub-space i is an agent with a Q network Q_i(o, .) over its K candidate sub-actions
-(``qmix_candidates``: the default plus a grid within default +- radius). Its choice maps to an
-ordinary normalised ``[n, width]`` action, so the environment, replay, failures, evaluation
-and robustness sweep see nothing special. The replay stores exactly the chosen candidate, and
-the update recovers its index as the nearest candidate (uniform random warm-up actions map
-to their nearest candidate too).
+(``qmix_candidates``: a centre plus a grid within centre +- radius; with the default prior the
+centre is the default and starts with a Q head start, ``start_at_prior``, else it is the
+mid-range point). Its choice maps to an ordinary normalised ``[n, width]`` action, so the
+environment, replay, failures, evaluation and robustness sweep see nothing special. The
+replay stores exactly the chosen candidate, and the update recovers its index as the nearest
+candidate (uniform random warm-up actions map to their nearest candidate too).
 
 Mixing (one sample, state s = o):
 ``Q_tot = w2(s)^T ELU(sum_{i active} |W1_i(s)| Q_i + b1(s)) + V(s)`` with hypernetworks
@@ -133,14 +134,30 @@ class QMIXNetworks:
             q, obs, mask
         )
 
-    def init(self, key: jax.Array):
+    def init(self, key: jax.Array, prior=None):
+        """Fresh parameters; ``prior`` (``[n]`` bool, None = all): the agents whose candidate 0
+        (their default) starts ``qmix_prior_q`` ahead (``start_at_prior``)."""
         key_q, key_mix = jax.random.split(key)
         obs = jnp.zeros(self.obs_size)
         agent_q = self.agent_q.init(key_q, jnp.zeros((self.n_agents, self.obs_size)))["params"]
+        agent_q = start_at_prior(agent_q, self.config, prior)
         mixer = self.mixer.init(
             key_mix, jnp.zeros(self.n_agents), obs, jnp.ones(self.n_agents, bool)
         )["params"]
         return {"agent_q": agent_q, "mixer": mixer}
+
+
+def start_at_prior(agent_q, m: MarlConfig, prior=None):
+    """Initial agent Q parameters (``StackedMLP``, leading agent axis): the output kernel scaled
+    by ``m.actor.head_init_scale`` (a fresh Q_i is ~its bias, as a fresh actor is ~its prior),
+    and ``m.qmix_prior_q`` added to the output bias of candidate 0 (the default, see
+    ``qmix_candidates``) of the agents marked in ``prior`` (None = all)."""
+    out = agent_q["agents"]["out"]
+    n, k = out["bias"].shape
+    on = jnp.ones(n) if prior is None else jnp.asarray(prior, jnp.float32)
+    bonus = m.qmix_prior_q * on[:, None] * (jnp.arange(k) == 0)
+    out = {"kernel": out["kernel"] * m.actor.head_init_scale, "bias": out["bias"] + bonus}
+    return {**agent_q, "agents": {**agent_q["agents"], "out": out}}
 
 
 def select_candidates(consts: QMIXConsts, index: jax.Array) -> jax.Array:
@@ -222,7 +239,7 @@ def qmix_optimizer(m: MarlConfig, trainable=None) -> optax.GradientTransformatio
 def grow_qmix(src: QMIXState, template: QMIXState, p, key: jax.Array) -> QMIXState:
     """Transfer (§4.3): old agents keep their Q networks and mixer heads W1_i, new ones start
     fresh, the shared mixer parts are kept; candidates, optimiser and epsilon are the grown
-    run's."""
+    run's (a new agent without the default prior: a grid centred mid-range, no Q head start)."""
     return template.replace(
         params=grow_stacked(src.params, template.params, p),
         target=grow_stacked(src.target, template.target, p),
@@ -233,8 +250,9 @@ def make_qmix(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     """QMIX on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
     width, n = ctx.width, ctx.n_agents
     nets = QMIXNetworks(m, ctx.env.observation_size, n)
+    prior = ctx.prior_mask
     cands, cand_valid = candidate_table(
-        ctx.space, ctx.agent_index, width, m.qmix_candidates, m.qmix_radius
+        ctx.space, ctx.agent_index, width, m.qmix_candidates, m.qmix_radius, prior
     )
     consts = QMIXConsts(jnp.ones(n, bool), jnp.asarray(cands), jnp.asarray(cand_valid))
     opt = qmix_optimizer(m, ctx.trainable)
@@ -245,7 +263,7 @@ def make_qmix(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     epsilon = EpsilonSchedule(f(m.qmix_eps_start), f(m.qmix_eps_end), f(decay_updates))
 
     def init(k, frozen=None):
-        params = nets.init(k)
+        params = nets.init(k, prior)
         return QMIXState(
             params, params, opt.init(params), consts, epsilon, jnp.zeros((), jnp.int32)
         )

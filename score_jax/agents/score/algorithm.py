@@ -58,7 +58,9 @@ def make_score(sc: ScoreConfig, ctx: BuildContext) -> Algorithm:
 
     def init(key: jax.Array, frozen: FrozenInputs | None = None) -> SACState:
         frozen = frozen_shapes() if frozen is None else frozen
-        consts = agent_consts(env.space, agent_index, width, frozen, sc.entropy_targets)
+        consts = agent_consts(
+            env.space, agent_index, width, frozen, sc.entropy_targets, ctx.prior_mask
+        )
         return sn.init_state(nets, key, consts, optimizers)
 
     off = OffPolicyAlgorithm("score", init, act, update, sn.hyper(sc, env), ctx.n_agents, width)

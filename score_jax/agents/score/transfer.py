@@ -3,9 +3,12 @@
 Starting from a run trained on a subset of sub-spaces:
 1. embed the unseen sub-spaces with the FROZEN HVAE (their observation sets are collected in
    the environment that now has them; ``asrl.embed_new_spaces``);
-2. grow the agent axis: the old actors keep their parameters, the new actors start fresh; the
-   agents are re-ordered into the space's order, so the result is an ordinary run over the
-   new sub-space set (the graph critic is permutation invariant);
+2. grow the agent axis: the old actors keep their parameters, the new actors start fresh
+   (untrained: no default prior, so mid-range with uniform choices, unless the transfer asks
+   for it with ``TransferSpec.new_actor_prior``; the grown run's ``AgentConsts`` say which
+   actors act around their default); the agents are re-ordered into the space's order, so the
+   result is an ordinary run over the new sub-space set (the graph critic is permutation
+   invariant);
 3. fine-tune only p_w, the GAT (or its hypernetwork) and f_xi of the critic, train the new
    actors, and keep the old actors frozen (or fine-tune them with ``finetune_old_actors``).
 
@@ -55,7 +58,8 @@ def grow_agent(
     """The grown algorithm state: old actors and critic from ``source``, fresh new actors.
 
     ``template`` is a fresh state of the grown run (right shapes, fresh optimiser states of
-    the fine-tuning optimisers); ``new_c`` ``[n_new, c_dim]`` are the frozen-HVAE embeddings
+    the fine-tuning optimisers, and its constants: which agents have the default prior);
+    ``new_c`` ``[n_new, c_dim]`` are the frozen-HVAE embeddings
     of the new sub-spaces (None when ASRL is off).
     """
     n_src = jax.tree.leaves(source.actor)[0].shape[0]
