@@ -23,12 +23,14 @@ class AlgorithmEntry:
     ``single``); ``builder``: the builder or its ``"module:function"`` path;
     ``in_process``: trained by the shared off-policy trainer (resumable), not brax's loop;
     ``grows``: its runs can grow by unseen sub-spaces (``Algorithm.grow``; checked before any
-    work by ``score-transfer``)."""
+    work by ``score-transfer``); ``variants``: it takes ``--single.transfer-variant``
+    (``agents.variants``)."""
 
     settings: str
     builder: Builder | str
     in_process: bool = True
     grows: bool = True
+    variants: bool = False
 
 
 _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
@@ -36,12 +38,18 @@ _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
     {
         "score": AlgorithmEntry("score", "score_jax.agents.score.algorithm:make_score"),
         "isac": AlgorithmEntry("marl", "score_jax.agents.marl.isac:make_isac"),
-        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg", grows=False),
-        "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac"),
-        "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix"),
-        "sac": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_sac", in_process=False),
-        "ppo": AlgorithmEntry("single", "score_jax.agents.brax.agents:make_ppo", in_process=False),
-        "hppo": AlgorithmEntry("single", "score_jax.agents.brax.hppo:make_hppo", in_process=False),
+        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg", variants=True),
+        "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac", variants=True),
+        "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix", variants=True),
+        "sac": AlgorithmEntry(
+            "single", "score_jax.agents.brax.agents:make_sac", in_process=False, variants=True
+        ),
+        "ppo": AlgorithmEntry(
+            "single", "score_jax.agents.brax.agents:make_ppo", in_process=False, variants=True
+        ),
+        "hppo": AlgorithmEntry(
+            "single", "score_jax.agents.brax.hppo:make_hppo", in_process=False, variants=True
+        ),
     },
 )
 

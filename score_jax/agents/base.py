@@ -102,6 +102,9 @@ class BuildContext:
       updates_per_step: gradient updates per vectorised step of the off-policy trainer.
       trainable: in a transfer run (§4.3), ``[n_agents]`` True for the agents whose actors
         train (new sub-spaces, or all with ``finetune_old_actors``); None in an ordinary run.
+      transfer_variant: ``plain`` | ``mask`` | ``penalty`` | None (``--single.transfer-variant``):
+        how a baseline built for the full space treats the sub-spaces outside ``agent_index``
+        (``agents.variants``); penalty_coef: the ``penalty`` variant's weight.
       log: where builders report progress.
     """
 
@@ -115,6 +118,8 @@ class BuildContext:
     num_envs: int = 8
     updates_per_step: int = 1
     trainable: np.ndarray | None = None
+    transfer_variant: str | None = None
+    penalty_coef: float = 1.0
     log: Callable[[str], None] = print
 
     @property

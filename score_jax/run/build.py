@@ -170,6 +170,8 @@ def build(
         num_envs=cfg.off_policy.num_envs,
         updates_per_step=cfg.off_policy.updates_per_step,
         trainable=trainable_agents(env.space, agent_index, transfer),
+        transfer_variant=cfg.single.transfer_variant,
+        penalty_coef=cfg.single.penalty_coef,
         log=log,
     )
     algo = registry.builder(cfg.algo)(cfg.algorithm_settings(), ctx)
