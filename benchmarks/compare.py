@@ -87,12 +87,10 @@ LABELS = {
     "maac": "MAAC",
     "qmix": "QMIX",
 }
-FIXED_WIDTH = (
-    "sac",
-    "ppo",
-    "hppo",
-    "maddpg",
-)  # networks sized for the full space: transfer variants (Table 3)
+# networks sized for the full space: transfer variants plain / mask / penalty (Table 3)
+FIXED_WIDTH = ("sac", "ppo", "hppo", "maddpg")
+# grown at transfer (their plain row), or built for the full space with mask / penalty (Table 3)
+GROWN_WITH_VARIANTS = ("maac", "qmix")
 AGG = {"attention": "AL", "mean": "MF", "sum": "SF"}
 
 
@@ -124,7 +122,8 @@ class CompareArgs:
     transfer_subspaces: str = ""
     """Subset of the transfer protocol; empty = the paper's for the environment."""
     variants: tuple[Literal["plain", "mask", "penalty"], ...] = ("plain", "mask", "penalty")
-    """Transfer variants of the fixed-width baselines (sac, ppo, hppo, maddpg)."""
+    """Transfer variants of the fixed-width baselines (sac, ppo, hppo, maddpg) and, except
+    plain (their grown transfer row), of maac and qmix."""
     eval_points: int = 10
     """Deterministic evaluations per run (learning-curve points)."""
     eval_episodes: int = 10
@@ -308,6 +307,16 @@ def decisions(args: CompareArgs, env: str) -> tuple[int, int]:
     return budget // repeat, budget // repeat * repeat
 
 
+def _transfer_variants(args: CompareArgs, algo: str) -> tuple[str, ...]:
+    """The transfer rows of ``algo``: ``plain`` is the grown transfer of an algorithm that grows
+    (maac and qmix also take mask / penalty; the fixed-width ones take all three)."""
+    if algo in FIXED_WIDTH:
+        return args.variants
+    if algo in GROWN_WITH_VARIANTS:
+        return ("plain",) + tuple(v for v in args.variants if v != "plain")
+    return ("plain",)
+
+
 def compare_env(args: CompareArgs, env: str) -> dict:
     steps, env_steps = decisions(args, env)
     subset = args.transfer_subspaces or SUBSETS[env]
@@ -332,12 +341,15 @@ def compare_env(args: CompareArgs, env: str) -> dict:
         jobs.append((label, "full", dataclasses.replace(cfg, run_dir=run_dir), None))
         if not args.transfer or not can_transfer(cfg):
             continue
-        for variant in args.variants if algo in FIXED_WIDTH else ("plain",):
+        for variant in _transfer_variants(args, algo):
             name = label if variant == "plain" else f"{label}-{variant}"
+            as_variant = algo in FIXED_WIDTH or variant != "plain"
             vcfg = dataclasses.replace(
                 cfg,
                 subspaces=subset,
-                single=dataclasses.replace(cfg.single, transfer_variant=variant),
+                single=dataclasses.replace(
+                    cfg.single, transfer_variant=variant if as_variant else None
+                ),
                 run_dir=os.path.join(args.work_dir, env, f"{slug}-{variant}-subset", seeds_dir),
             )
             target = os.path.join(args.work_dir, env, f"{slug}-{variant}-transfer", seeds_dir)

@@ -25,13 +25,16 @@ class AlgorithmEntry:
     ``grows``: its runs can grow by unseen sub-spaces (``Algorithm.grow``; checked before any
     work by ``score-transfer``); ``fixed_width``: its network has heads for every sub-space of
     the full space, so growing adds no new actors (the brax baselines: a subset run starts the
-    heads of the sub-spaces it does not control untrained, without the default prior)."""
+    heads of the sub-spaces it does not control untrained, without the default prior);
+    ``variants``: it takes ``--single.transfer-variant``
+    (``agents.variants``)."""
 
     settings: str
     builder: Builder | str
     in_process: bool = True
     grows: bool = True
     fixed_width: bool = False
+    variants: bool = False
 
 
 _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
@@ -39,17 +42,29 @@ _ALGORITHMS: LazyRegistry[AlgorithmEntry] = LazyRegistry(
     {
         "score": AlgorithmEntry("score", "score_jax.agents.score.algorithm:make_score"),
         "isac": AlgorithmEntry("marl", "score_jax.agents.marl.isac:make_isac"),
-        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg", grows=False),
-        "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac"),
-        "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix"),
+        "maddpg": AlgorithmEntry("marl", "score_jax.agents.marl.maddpg:make_maddpg", variants=True),
+        "maac": AlgorithmEntry("marl", "score_jax.agents.marl.maac:make_maac", variants=True),
+        "qmix": AlgorithmEntry("marl", "score_jax.agents.marl.qmix:make_qmix", variants=True),
         "sac": AlgorithmEntry(
-            "single", "score_jax.agents.brax.agents:make_sac", in_process=False, fixed_width=True
+            "single",
+            "score_jax.agents.brax.agents:make_sac",
+            in_process=False,
+            fixed_width=True,
+            variants=True,
         ),
         "ppo": AlgorithmEntry(
-            "single", "score_jax.agents.brax.agents:make_ppo", in_process=False, fixed_width=True
+            "single",
+            "score_jax.agents.brax.agents:make_ppo",
+            in_process=False,
+            fixed_width=True,
+            variants=True,
         ),
         "hppo": AlgorithmEntry(
-            "single", "score_jax.agents.brax.hppo:make_hppo", in_process=False, fixed_width=True
+            "single",
+            "score_jax.agents.brax.hppo:make_hppo",
+            in_process=False,
+            fixed_width=True,
+            variants=True,
         ),
     },
 )

@@ -106,6 +106,9 @@ class BuildContext:
         default (``TrainConfig.default_prior``; in a transfer run the new agents follow
         ``TransferSpec.new_actor_prior``); None = every agent. Without the prior a policy
         starts mid-range (continuous dims) with uniform choices (discrete dims).
+      transfer_variant: ``plain`` | ``mask`` | ``penalty`` | None (``--single.transfer-variant``):
+        how a baseline built for the full space treats the sub-spaces outside ``agent_index``
+        (``agents.variants``); penalty_coef: the ``penalty`` variant's weight.
       log: where builders report progress.
     """
 
@@ -120,6 +123,8 @@ class BuildContext:
     updates_per_step: int = 1
     trainable: np.ndarray | None = None
     prior: np.ndarray | None = None
+    transfer_variant: str | None = None
+    penalty_coef: float = 1.0
     log: Callable[[str], None] = print
 
     @property

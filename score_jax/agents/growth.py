@@ -66,13 +66,24 @@ def agent_rows(p: TransferPlan, n_src: int) -> np.ndarray:
     return np.where(p.is_new, n_src + np.arange(len(p.agent_index)), p.source_row)
 
 
+def is_per_agent(path) -> bool:
+    """Whether a leaf at ``path`` (``jax.tree_util`` key path) is per-agent: it sits under an
+    ``agents`` key (``networks.stacked``) and has a leading agent axis."""
+    return any(getattr(k, "key", None) == "agents" for k in path)
+
+
+def identity_plan(n: int) -> TransferPlan:
+    """The plan that keeps all ``n`` agents where they are (a network already built for every
+    sub-space: the transfer variants, ``agents.variants``)."""
+    return TransferPlan(np.arange(n), np.zeros(n, bool), np.arange(n))
+
+
 def grow_stacked(source, template, p: TransferPlan):
     """Grow a parameter tree whose per-agent leaves sit under an ``agents`` key (stacked on a
     leading agent axis, ``nn.vmap``): those rows come from ``source`` (old sub-spaces) or
     ``template`` (new ones, fresh); every other leaf (shared across agents) from ``source``."""
-    per_agent = lambda path: any(getattr(k, "key", None) == "agents" for k in path)
     n_src = {
-        x.shape[0] for path, x in jax.tree_util.tree_leaves_with_path(source) if per_agent(path)
+        x.shape[0] for path, x in jax.tree_util.tree_leaves_with_path(source) if is_per_agent(path)
     }
     if len(n_src) != 1:
         raise ValueError(
@@ -80,5 +91,5 @@ def grow_stacked(source, template, p: TransferPlan):
             f"found {sorted(n_src)}"
         )
     rows = agent_rows(p, n_src.pop())
-    grow = lambda path, s, t: jnp.concatenate([s, t], 0)[rows] if per_agent(path) else s
+    grow = lambda path, s, t: jnp.concatenate([s, t], 0)[rows] if is_per_agent(path) else s
     return jax.tree_util.tree_map_with_path(grow, source, template)

@@ -27,8 +27,9 @@ from score_jax.run.validate import UsageError, transfer_run_dir, validate_transf
 
 @dataclasses.dataclass(frozen=True)
 class TransferArgs:
-    """Grow a trained run (score, isac, maac, qmix, or a fixed-width sac / ppo / hppo run) by
-    unseen sub-spaces and fine-tune it (§4.3)."""
+    """Grow a trained run (score, isac, maac, qmix) by unseen sub-spaces, or fine-tune one built
+    for the full space (sac, ppo, hppo, maddpg, and maac / qmix trained with a
+    --single.transfer-variant) on them, and report Initial / Converge (§4.3, §5.2.4)."""
 
     checkpoint: str
     """Run directory of the trained (subset) run."""
@@ -75,7 +76,7 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
         raise ValueError(
             f"{args.checkpoint} was trained with {src.config.algo!r}, whose networks are tied to "
             "the sub-spaces it was trained on, so it cannot grow by unseen ones "
-            "(transfer.py grows score, isac, maac, qmix, sac, ppo and hppo runs)"
+            "(see score-transfer --help)"
         )
     space = src.env.space
     names = () if args.subspaces is None else tuple(x.strip() for x in args.subspaces.split(","))

@@ -179,6 +179,8 @@ def build(
         updates_per_step=cfg.off_policy.updates_per_step,
         trainable=trainable_agents(env.space, agent_index, transfer),
         prior=prior_agents(cfg, [env.space.names[i] for i in agent_index], transfer),
+        transfer_variant=cfg.single.transfer_variant,
+        penalty_coef=cfg.single.penalty_coef,
         log=log,
     )
     algo = registry.builder(cfg.algo)(cfg.algorithm_settings(), ctx)

@@ -251,6 +251,13 @@ def _check_train(cfg: TrainConfig, resuming: bool = False) -> tuple[list[str], A
             f"--single.num-envs {cfg.single.num_envs} must be a multiple of the {devices} "
             "devices brax trains on"
         )
+    variant = cfg.single.transfer_variant
+    if variant is not None and cfg.algo in algo_names and not registry.entry(cfg.algo).variants:
+        takes = ", ".join(n for n in algo_names if registry.entry(n).variants)
+        problems.append(
+            f"--single.transfer-variant {variant}: {cfg.algo} has no transfer variants (they "
+            f"are for the baselines built for the full space: {takes})"
+        )
     if resuming and not in_process:
         problems.append(RESUME_ERROR.format(algo=cfg.algo, run_dir=cfg.resume))
     if not resuming:
@@ -476,6 +483,10 @@ def transfer_run_dir(args) -> str:
     return args.run_dir or args.checkpoint.rstrip("/") + "-transfer"
 
 
+def _growing() -> str:
+    return ", ".join(n for n in registry.algorithm_names() if registry.entry(n).grows)
+
+
 def validate_transfer_args(args) -> list[str]:
     """Problems of ``score-transfer`` arguments (``checkpoint``, ``env``, ``subspaces``,
     ``total_steps``, ``run_dir``, ``eval_episodes``, ``compare_scratch``, ``new_actor_prior``:
@@ -495,7 +506,7 @@ def validate_transfer_args(args) -> list[str]:
         return problems + [
             f"--checkpoint {args.checkpoint} was trained with {src.algo!r}, whose networks are "
             "tied to the sub-spaces it was trained on, so it cannot grow by unseen ones "
-            "(score-transfer grows score, isac, maac, qmix, sac, ppo and hppo runs)"
+            f"(score-transfer takes runs of {_growing()})"
         ]
     if args.env is not None and args.env != src.env:
         problems.append(f"--env {args.env}: the checkpoint was trained on {src.env!r}")

@@ -10,7 +10,7 @@ external driver writes the metrics, shows progress and checkpoints the final pol
 The saved agent state is brax's inference parameters: ``(normalizer, policy)`` for SAC and
 ``(normalizer, policy, value)`` for PPO / H-PPO. Their networks cover every sub-space of the
 full space (fixed width): a ``--subspaces`` run keeps the unseen heads and treats them with
-the transfer variant (``agents.brax.variants``).
+the transfer variant (``agents.variants``).
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from brax.training.agents.ppo import train as brax_ppo
 from brax.training.agents.sac import networks as sac_networks
 from brax.training.agents.sac import train as brax_sac
 
+from score_jax.agents import variants
 from score_jax.agents.base import Algorithm, BuildContext, OffPolicyAlgorithm, deterministic_policy
-from score_jax.agents.brax import variants
 from score_jax.agents.brax.config import SingleAgentConfig
 from score_jax.agents.brax.flat_env import BraxFlatEnv
 from score_jax.networks.actor import default_offset
@@ -172,7 +172,8 @@ def build(
     flat action, un-flattened, rows of the controlled sub-spaces.
     """
     env, space = ctx.env, ctx.space
-    variants.check_variant(sc.transfer_variant)
+    variant = sc.transfer_variant or "plain"  # fixed width: a subset run always has one
+    variants.check_variant(variant)
     idx = np.asarray(ctx.agent_index)
     seen = variants.seen_mask(space, idx)
     # The network covers every sub-space. The heads of those a subset run does not control
@@ -206,7 +207,7 @@ def build(
         seed = ctx.seed if seed is None else int(seed)
         subset = not seen.all()
         train_factory = (
-            variant_factory(factory, space, seen, sc.transfer_variant, sc.penalty_coef, head_mask)
+            variant_factory(factory, space, seen, variant, sc.penalty_coef, head_mask)
             if subset
             else factory
         )

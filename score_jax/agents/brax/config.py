@@ -1,5 +1,6 @@
 """Settings of the single-agent baselines (``--algo sac|ppo|hppo``, §5.1) and of the transfer
-variant every fixed-width baseline trains a subset run with (§5.2.4, §5.4, Table 3).
+variant a baseline built for the full space trains a subset run with (§5.2.4, §5.4, Table 3;
+sac, ppo, hppo, maddpg, and maac, qmix when asked).
 
 One field on ``TrainConfig`` (``single``), so on the command line: ``--single.hidden 64 64``,
 ``--single.ppo.unroll-length 20``, ``--single.sac.min-replay-size 2000``,
@@ -58,7 +59,8 @@ class BraxSACConfig:
 
 @dataclasses.dataclass(frozen=True)
 class SingleAgentConfig:
-    """Single-agent baselines trained by brax, and the fixed-width transfer variants."""
+    """Single-agent baselines trained by brax, and the transfer variants of every baseline built
+    for the full space."""
 
     hidden: tuple[int, ...] = (256, 256)
     """Hidden widths of the policy (H-PPO: its shared trunk) and of the value / Q networks."""
@@ -92,11 +94,13 @@ class SingleAgentConfig:
     """PPO / H-PPO settings."""
     sac: BraxSACConfig = BraxSACConfig()
     """SAC settings."""
-    transfer_variant: TransferVariant = "plain"
-    """How a fixed-width baseline (PPO, SAC, H-PPO, MADDPG) treats the heads of the sub-spaces
-    it does not see in a ``--subspaces`` run (Table 3): ``plain`` freezes them, ``mask``
-    trains them but the environment gets those sub-spaces' defaults, ``penalty`` = mask plus
-    a penalty on their outputs' deviation from the defaults."""
+    transfer_variant: TransferVariant | None = None
+    """How a baseline built for the full space treats the heads (agents) of the sub-spaces it
+    does not see in a ``--subspaces`` run (Table 3; ``agents.variants``); the environment always
+    gets those sub-spaces' defaults. ``plain`` freezes them, ``mask`` trains them, ``penalty`` =
+    mask plus a penalty on their outputs' deviation from the defaults. Taken by the fixed-width
+    baselines sac, ppo, hppo, maddpg (None = plain) and by maac, qmix (None = no variant: the
+    run is built on its sub-spaces and transfer grows it); score and isac have none."""
     penalty_coef: float = 1.0
     """Weight of the ``penalty`` variant's term (mean over the batch of the summed squared
     deviation of the unseen heads' sub-actions from the defaults, in normalised units)."""

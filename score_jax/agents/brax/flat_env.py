@@ -11,7 +11,7 @@ import numpy as np
 from brax.envs.base import Env, State
 
 from envs.base import CompositeEnv
-from score_jax.agents.brax.variants import replace_unseen
+from score_jax.agents.variants import replace_unseen
 
 
 class BraxFlatEnv(Env):
@@ -19,7 +19,7 @@ class BraxFlatEnv(Env):
 
     ``controlled`` (``[n]`` bool, default all): sub-spaces whose sub-actions reach the
     environment; the others get their defaults through the shared failure function (a
-    fixed-width baseline trained on a subset, ``agents.brax.variants``).
+    fixed-width baseline trained on a subset, ``agents.variants``).
 
     ``done`` is reported for true terminations only: brax's ``EpisodeWrapper`` (with
     ``episode_length = env.episode_length``) ends episodes at the time limit and marks them

@@ -64,4 +64,6 @@ class ISACNetworks(mc.SACAgentNetworks):
 
 def make_isac(m: MarlConfig, ctx: BuildContext) -> Algorithm:
     """ISAC on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
+    if ctx.transfer_variant is not None:
+        raise ValueError("isac has no transfer variants: its transfer adds agents (§5.2.4)")
     return mc.make_sac_baseline("isac", ISACNetworks, m, ctx)

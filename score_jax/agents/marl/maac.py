@@ -21,6 +21,10 @@ dims, straight-through Gumbel discrete dims, which is MAAC's own relaxation), so
 a_i as an input instead of having one output per discrete action. MAAC's counterfactual
 baseline reduces the variance of a score-function gradient; with the reparameterised SAC
 gradient used here it has no effect and is left out.
+
+Transfer (§5.2.4): a subset run grows by the unseen agents (``mc.grow_sac``); with
+``--single.transfer-variant`` it is instead built for every sub-space and keeps them
+(``mc.MarlVariant``, Table 3's MAAC-mask / MAAC-penalty).
 """
 
 from __future__ import annotations
@@ -103,5 +107,6 @@ class MAACNetworks(mc.SACAgentNetworks):
 
 
 def make_maac(m: MarlConfig, ctx: BuildContext) -> Algorithm:
-    """MAAC on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
-    return mc.make_sac_baseline("maac", MAACNetworks, m, ctx)
+    """MAAC on the sub-spaces ``ctx.agent_index`` of ``ctx.env``; with a transfer variant
+    (``ctx.transfer_variant``) built for every sub-space (``mc.MarlVariant``)."""
+    return mc.make_sac_baseline("maac", MAACNetworks, m, ctx, mc.marl_variant(ctx))

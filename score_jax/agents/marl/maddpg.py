@@ -13,7 +13,10 @@
 - Update: DDPG with target actors and a target critic (``ddpg.py``), no twin critics.
 
 The critic's input layer has one slot per sub-space, so MADDPG cannot grow by unseen
-sub-spaces (``Algorithm.grow`` is None; transfer.py refuses it with a message).
+sub-spaces: it is a fixed-width baseline, always built for every sub-space of the space, and a
+``--subspaces`` run treats the unseen ones with its transfer variant (``mc.MarlVariant``,
+``--single.transfer-variant``, default ``plain``; Table 3). Transfer then fine-tunes the same
+networks on the full space (``keep_ddpg``).
 """
 
 from __future__ import annotations
@@ -95,21 +98,40 @@ class MADDPGNetworks(mc.AgentNetworks):
         )
 
 
+def keep_ddpg(src: DDPGState, template: DDPGState, p, key: jax.Array) -> DDPGState:
+    """Transfer of MADDPG (its networks already cover every sub-space, ``p`` keeps every agent
+    where it is): the trained actors, critic and targets; optimiser states, constants and noise
+    are the fine-tuning run's fresh ones."""
+    del p, key
+    return template.replace(
+        actor=src.actor,
+        critic=src.critic,
+        target_actor=src.target_actor,
+        target_critic=src.target_critic,
+    )
+
+
 def make_maddpg(m: MarlConfig, ctx: BuildContext) -> Algorithm:
-    """MADDPG on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
-    nets = MADDPGNetworks.for_context(m, ctx)
-    consts = mc.marl_consts(m, ctx)
-    optimizers = (mc.adam(m, m.actor_lr), mc.adam(m, m.critic_lr))
-    update = make_ddpg_update(nets.policy_fn, nets.q_fn, *optimizers)
+    """MADDPG for every sub-space of ``ctx.env`` controlling ``ctx.agent_index`` (the others at
+    their defaults, treated with the transfer variant)."""
+    variant = mc.marl_variant(ctx, default="plain")
+    net_ctx = variant.context(ctx)
+    nets = MADDPGNetworks.for_context(m, net_ctx)
+    consts = mc.marl_consts(m, net_ctx)
+    optimizers = (mc.adam(m, m.actor_lr, net_ctx.trainable), mc.adam(m, m.critic_lr))
+    policy_fn = lambda actor, consts, obs: variant.output(
+        nets.policy_fn(variant.params(actor), consts, obs)
+    )
+    update = variant.update(make_ddpg_update(policy_fn, variant.critic(nets.q_fn), *optimizers))
 
     def act(state: DDPGState, obs, key, deterministic):
         if deterministic:
-            return nets.policy_fn(state.actor, state.consts, obs)
-        return nets.explore(state.actor, state.consts, obs, key, state.noise_std)
+            return variant.rows(nets.policy_fn(state.actor, state.consts, obs))
+        return variant.rows(nets.explore(state.actor, state.consts, obs, key, state.noise_std))
 
     f = lambda x: jnp.asarray(x, jnp.float32)
     hyper = DDPGHyper(
         gamma=f(m.gamma), tau=f(m.tau), reward_scale=f(m.resolved_reward_scale(ctx.env))
     )
     init = lambda k, frozen=None: nets.init(k, consts, optimizers, m.maddpg_noise)
-    return mc.make_algorithm("maddpg", init, act, update, hyper, ctx, nets)
+    return mc.make_algorithm("maddpg", init, act, update, hyper, ctx, nets, variant.grow(keep_ddpg))

@@ -21,6 +21,13 @@ leaves Q_tot unchanged. TD target with double Q and target networks:
 Epsilon-greedy exploration per agent; the linear epsilon schedule is an array in the state
 (changing it never recompiles). Deviation: agents are MLPs on the full observation (QMIX's
 GRU agents address partial observability, which these environments do not have).
+
+Transfer (§5.2.4): a subset run grows by the unseen agents (``grow_qmix``); with
+``--single.transfer-variant`` it is instead built for every sub-space (``VariantQMIXNetworks``,
+Table 3's QMIX-mask / QMIX-penalty): the unseen agents act their default candidate (the one the
+environment receives), ``plain`` freezes their Q networks (the mixer trains), and ``penalty``
+pulls their greedy choice to the default through the Boltzmann expectation of the deviation,
+``sum_k softmax_k(Q_i(o, .)) |c_ik - d_i|^2`` (the arg-max itself has no gradient).
 """
 
 from __future__ import annotations
@@ -31,9 +38,11 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
+from score_jax.agents import variants
 from score_jax.agents.base import Algorithm, BuildContext
 from score_jax.agents.growth import freeze_agent_rows, grow_stacked
 from score_jax.agents.marl import common as mc
@@ -128,6 +137,10 @@ class QMIXNetworks:
         )(obs)
         return jnp.where(consts.candidate_valid, q, -jnp.inf)
 
+    def executed(self, consts: QMIXConsts, index: jax.Array) -> jax.Array:
+        """``index [B, n] -> [B, n]``: the candidates the environment would receive."""
+        return index
+
     def mix(self, params, q, obs, mask) -> jax.Array:
         """``q [B, n], obs [B, obs], mask [B, n] -> Q_tot [B]``."""
         return jax.vmap(lambda a, o, m: self.mixer.apply({"params": params["mixer"]}, a, o, m))(
@@ -160,6 +173,39 @@ def start_at_prior(agent_q, m: MarlConfig, prior=None):
     return {**agent_q, "agents": {**agent_q["agents"], "out": out}}
 
 
+@dataclasses.dataclass(frozen=True)
+class VariantQMIXNetworks(QMIXNetworks):
+    """QMIX built for every sub-space with a transfer variant (``mc.MarlVariant``).
+
+    ``deviation [n, K]``: squared deviation of each candidate from its sub-space's default.
+    """
+
+    variant: Any = None  # mc.MarlVariant
+    deviation: Any = None
+
+    def q_values(self, params, consts: QMIXConsts, obs) -> jax.Array:
+        v = self.variant
+        head_mask = lambda p: {
+            "agent_q": variants.agent_rows(p["agent_q"], v.unseen),
+            "mixer": jax.tree.map(lambda _: np.zeros((), bool), p["mixer"]),
+        }
+        q = super().q_values(v.params(params, head_mask), consts, obs)
+        return v.output(q, self.expected_deviation)
+
+    def expected_deviation(self, q: jax.Array) -> jax.Array:
+        """``q [B, n, K] -> [B]``: the unseen agents' Boltzmann-expected candidate deviation."""
+        p = jax.nn.softmax(q, axis=-1)  # invalid candidates (-inf) get 0
+        unseen = jnp.asarray(self.variant.unseen)[:, None]
+        return jnp.sum(jnp.where(unseen, p * self.deviation, 0.0), axis=(-2, -1))
+
+    def executed(self, consts: QMIXConsts, index: jax.Array) -> jax.Array:
+        """The unseen agents' choices replaced by their defaults (``variants.replace_unseen``),
+        as the environment receives them."""
+        v = self.variant
+        action = variants.replace_unseen(v.space, select_candidates(consts, index), v.seen)
+        return candidate_index(consts, action)
+
+
 def select_candidates(consts: QMIXConsts, index: jax.Array) -> jax.Array:
     """``index [B, n] -> action [B, n, w]`` (invalid agents 0)."""
     action = jnp.take_along_axis(consts.candidates[None], index[..., None, None], axis=2)[:, :, 0]
@@ -184,8 +230,8 @@ def qmix_loss(
     consts = state.consts
     q = pick(nets.q_values(params, consts, batch.obs), candidate_index(consts, batch.action))
     q_tot = nets.mix(params, jnp.where(mask, q, 0.0), batch.obs, mask)
-    next_index = jnp.argmax(
-        jax.lax.stop_gradient(nets.q_values(params, consts, batch.next_obs)), -1
+    next_index = nets.executed(
+        consts, jnp.argmax(jax.lax.stop_gradient(nets.q_values(params, consts, batch.next_obs)), -1)
     )  # double Q
     next_q = pick(nets.q_values(state.target, consts, batch.next_obs), next_index)
     next_tot = nets.mix(state.target, jnp.where(mask, next_q, 0.0), batch.next_obs, mask)
@@ -247,15 +293,27 @@ def grow_qmix(src: QMIXState, template: QMIXState, p, key: jax.Array) -> QMIXSta
 
 
 def make_qmix(m: MarlConfig, ctx: BuildContext) -> Algorithm:
-    """QMIX on the sub-spaces ``ctx.agent_index`` of ``ctx.env``."""
-    width, n = ctx.width, ctx.n_agents
-    nets = QMIXNetworks(m, ctx.env.observation_size, n)
-    prior = ctx.prior_mask
+    """QMIX on the sub-spaces ``ctx.agent_index`` of ``ctx.env``; with a transfer variant
+    (``ctx.transfer_variant``) built for every sub-space (``VariantQMIXNetworks``)."""
+    variant = mc.marl_variant(ctx)
+    net_ctx = ctx if variant is None else variant.context(ctx)
+    width, n = ctx.width, net_ctx.n_agents
+    prior = net_ctx.prior_mask
+    # An unseen sub-space's grid keeps its default as a candidate (``executed`` maps the default
+    # the environment receives onto it); only its Q bonus follows the prior.
+    centred = prior if variant is None else prior | ~np.asarray(variant.seen, bool)
     cands, cand_valid = candidate_table(
-        ctx.space, ctx.agent_index, width, m.qmix_candidates, m.qmix_radius, prior
+        ctx.space, net_ctx.agent_index, width, m.qmix_candidates, m.qmix_radius, centred
     )
+    if variant is None or not variant.subset:
+        nets = QMIXNetworks(m, ctx.env.observation_size, n)
+    else:
+        default = np.asarray(variant.space.default_action())
+        default = np.pad(default, ((0, 0), (0, width - default.shape[1])))
+        deviation = np.where(cand_valid, np.sum((cands - default[:, None]) ** 2, -1), 0.0)
+        nets = VariantQMIXNetworks(m, ctx.env.observation_size, n, variant, deviation)
     consts = QMIXConsts(jnp.ones(n, bool), jnp.asarray(cands), jnp.asarray(cand_valid))
-    opt = qmix_optimizer(m, ctx.trainable)
+    opt = qmix_optimizer(m, net_ctx.trainable)
     f = lambda x: jnp.asarray(x, jnp.float32)
     decay_updates = (
         m.qmix_eps_decay_steps / ctx.num_envs * ctx.updates_per_step
@@ -272,17 +330,18 @@ def make_qmix(m: MarlConfig, ctx: BuildContext) -> Algorithm:
         q = nets.q_values(state.params, state.consts, obs)
         greedy = jnp.argmax(q, -1)
         if deterministic:
-            return select_candidates(state.consts, greedy)
+            return rows(select_candidates(state.consts, greedy))
         key_rand, key_eps = jax.random.split(key)
         uniform = jax.random.categorical(
             key_rand, jnp.where(state.consts.candidate_valid, 0.0, -jnp.inf), shape=greedy.shape
         )
         explore = jax.random.uniform(key_eps, greedy.shape) < state.epsilon(state.updates)
-        return select_candidates(state.consts, jnp.where(explore, uniform, greedy))
+        return rows(select_candidates(state.consts, jnp.where(explore, uniform, greedy)))
 
     hyper = QMIXHyper(
         gamma=f(m.gamma), tau=f(m.tau), reward_scale=f(m.resolved_reward_scale(ctx.env))
     )
-    return mc.make_algorithm(
-        "qmix", init, act, make_qmix_update(nets, opt), hyper, ctx, nets, grow_qmix
-    )
+    update, grow, rows = make_qmix_update(nets, opt), grow_qmix, lambda a: a
+    if variant is not None:
+        update, grow, rows = variant.update(update), variant.grow(grow_qmix), variant.rows
+    return mc.make_algorithm("qmix", init, act, update, hyper, ctx, nets, grow)
