@@ -71,6 +71,7 @@ FULL_BUDGET = {"greenhouse": 1_152_000, "spider": 500_000, "probe": 20_000}
 QUICK_BUDGET = {"greenhouse": 16_000, "spider": 4_000, "probe": 1_000}
 QUICK_ALGOS = ("score", "isac", "ppo")
 EQ2_LABEL = "ASRL(eq.2)"
+FIGURE_DIR = "results"  # next to results.md, which links its figures as results/<file>
 
 
 @dataclasses.dataclass(frozen=True)
@@ -456,7 +457,7 @@ def page(args: PaperArgs, p: Plan, results: list[dict], seconds: float) -> str:
 def main(args: PaperArgs) -> int:
     enable_compile_cache()
     p = plan(args)
-    figdir = os.path.join(args.out, "results")
+    figdir = os.path.join(args.out, FIGURE_DIR)
     os.makedirs(figdir, exist_ok=True)
     t0 = time.time()
     log = lambda m: print(m, flush=True)
@@ -464,7 +465,7 @@ def main(args: PaperArgs) -> int:
     text = page(args, p, results, time.time() - t0)
     with open(os.path.join(args.out, "results.md"), "w") as f:
         f.write(text)
-    with open(os.path.join(args.out, "results", "results.json"), "w") as f:
+    with open(os.path.join(figdir, "results.json"), "w") as f:
         json.dump(results, f, indent=1, default=lambda o: np.asarray(o).tolist())
     log(text)
     log(f"wrote {os.path.join(args.out, 'results.md')} ({(time.time() - t0) / 60:.1f} min)")
