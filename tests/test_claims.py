@@ -62,6 +62,13 @@ def test_clear_wins_reproduce_clear_losses_refute_and_overlap_is_inconclusive():
     assert "**not reproduced**" in md and "SCORE > ISAC: 1.00" in md
 
 
+def test_fewer_than_three_seeds_decide_nothing():
+    rows = {"SCORE": _row(full=[10, 11]), "ISAC": _row(full=[1, 2])}
+    claims = by_name(check_claims(rows))
+    assert claims["effectiveness"]["comparisons"][0]["p"] == 1.0
+    assert claims["effectiveness"]["verdict"] == INCONCLUSIVE
+
+
 def test_what_was_not_run_is_not_measured():
     claims = by_name(check_claims({"SCORE": _row(full=[1, 2, 3])}))
     assert {c["verdict"] for c in claims.values()} == {MISSING}

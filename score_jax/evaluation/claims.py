@@ -6,7 +6,8 @@ Each comparison is the probability of improvement ``P(X > Y)`` (Agarwal et al. 2
 
 - ``reproduced`` when every comparison it makes has its interval above 0.5,
 - ``not reproduced`` when at least one has its interval below 0.5 (the other side wins),
-- ``inconclusive`` otherwise (some interval covers 0.5: more seeds could tell).
+- ``inconclusive`` otherwise (some interval covers 0.5: more seeds could tell), and always when
+  either side has fewer than ``MIN_SEEDS`` seeds (a bootstrap of two values is no interval).
 
 The claims (§5.2-§5.4, the conclusion):
 
@@ -38,6 +39,7 @@ REPRODUCED, NOT_REPRODUCED, INCONCLUSIVE, MISSING = (
     "not measured",
 )
 SCORE = "SCORE"
+MIN_SEEDS = 3
 ABLATION_PREFIXES = ("ASRL", "AL", "MF", "SF")
 
 
@@ -51,6 +53,8 @@ def comparison(x: Sequence[float], y: Sequence[float], x_label: str, y_label: st
     x, y = np.asarray(x, float), np.asarray(y, float)
     point, (lo, hi) = probability_of_improvement(x, y, reps=5_000)
     verdict = REPRODUCED if lo > 0.5 else NOT_REPRODUCED if hi < 0.5 else INCONCLUSIVE
+    if min(len(x), len(y)) < MIN_SEEDS:
+        verdict = INCONCLUSIVE
     return {
         "x": x_label,
         "y": y_label,
