@@ -428,6 +428,14 @@ def page(args: PaperArgs, p: Plan, results: list[dict], seconds: float) -> str:
         "compare per-seed values by the probability of improvement (see "
         "`score_jax/evaluation/claims.py`).",
     ]
+    if args.quick:
+        lines += [
+            "",
+            "**This is the `--quick` check of the pipeline** (few seeds, a small fraction of the "
+            "main job's budget, 300 ASRL steps): its numbers and verdicts say nothing about the "
+            "paper's claims. The page at CPU scale is `python benchmarks/paper.py --out docs` "
+            "(5 seeds per row at the main job's budget: many hours on 2 cores per environment).",
+        ]
     for r in results:
         env = r["env"]
         for prior, res in r["priors"].items():
