@@ -317,25 +317,32 @@ def _transfer_variants(args: CompareArgs, algo: str) -> tuple[str, ...]:
     return ("plain",)
 
 
+def row_config(args: CompareArgs, env: str, algo: str, **overrides) -> TrainConfig:
+    """The training configuration of one row: ``args.base`` on ``env`` with ``algo``, every
+    seed in one run, the budget of ``decisions`` and ``--eval-points`` evaluations."""
+    steps, _ = decisions(args, env)
+    return dataclasses.replace(
+        args.base,
+        env=env,
+        algo=algo,
+        seed=0,
+        num_seeds=args.seeds,
+        total_steps=steps,
+        eval_every=max(1, steps // args.eval_points),
+        eval_episodes=args.eval_episodes,
+        robustness_seeds=0,
+        quiet=True,
+        **overrides,
+    )
+
+
 def compare_env(args: CompareArgs, env: str) -> dict:
     steps, env_steps = decisions(args, env)
     subset = args.transfer_subspaces or SUBSETS[env]
     jobs = []  # (label, kind, cfg, transfer target dir) with kind "full" or "transfer"
     seeds_dir = _seeds_dir(args.seeds)
     for label, algo, overrides in rows(args):
-        cfg = dataclasses.replace(
-            args.base,
-            env=env,
-            algo=algo,
-            seed=0,
-            num_seeds=args.seeds,
-            total_steps=steps,
-            eval_every=max(1, steps // args.eval_points),
-            eval_episodes=args.eval_episodes,
-            robustness_seeds=0,
-            quiet=True,
-            **overrides,
-        )
+        cfg = row_config(args, env, algo, **overrides)
         slug = label.replace("+", "_").lower()
         run_dir = os.path.join(args.work_dir, env, slug, seeds_dir)
         jobs.append((label, "full", dataclasses.replace(cfg, run_dir=run_dir), None))

@@ -181,23 +181,17 @@ def compare_args(args: PaperArgs, p: Plan, env: str, prior: str) -> compare.Comp
     )
 
 
+def _score_run(cargs: compare.CompareArgs, env: str, name: str, **overrides) -> TrainConfig:
+    """A SCORE run of ``cargs``' budget and seeds outside compare.py's rows, in ``name``."""
+    run_dir = os.path.join(cargs.work_dir, env, name, compare._seeds_dir(cargs.seeds))
+    return compare.row_config(cargs, env, "score", run_dir=run_dir, **overrides)
+
+
 def eq2_row(cargs: compare.CompareArgs, env: str) -> tuple[str, dict]:
     """Table 2's row with the HVAE trained on eq. 2 alone (action-reconstruction weight 0)."""
     score = cargs.base.score
     hvae = dataclasses.replace(score.hvae, action_recon_weight=0.0)
-    steps, _ = compare.decisions(cargs, env)
-    cfg = dataclasses.replace(
-        cargs.base,
-        env=env,
-        algo="score",
-        seed=0,
-        num_seeds=cargs.seeds,
-        total_steps=steps,
-        eval_every=max(1, steps // cargs.eval_points),
-        eval_episodes=cargs.eval_episodes,
-        score=dataclasses.replace(score, hvae=hvae),
-        run_dir=os.path.join(cargs.work_dir, env, "asrl_eq2", compare._seeds_dir(cargs.seeds)),
-    )
+    cfg = _score_run(cargs, env, "asrl_eq2", score=dataclasses.replace(score, hvae=hvae))
     res = compare.run_full(cfg, cargs.eval_episodes)
     return EQ2_LABEL, {
         "full": {
@@ -210,20 +204,8 @@ def eq2_row(cargs: compare.CompareArgs, env: str) -> tuple[str, dict]:
 
 def profit_run(cargs: compare.CompareArgs, env: str) -> str:
     """A SCORE run on the greenhouse with the profit reward (Fig. 10), same budget and seeds."""
-    steps, _ = compare.decisions(cargs, env)
     options = tuple(o for o in cargs.base.env_options if not o.startswith("reward="))
-    cfg = dataclasses.replace(
-        cargs.base,
-        env=env,
-        algo="score",
-        seed=0,
-        num_seeds=cargs.seeds,
-        total_steps=steps,
-        eval_every=max(1, steps // cargs.eval_points),
-        eval_episodes=cargs.eval_episodes,
-        env_options=(*options, "reward='profit'"),
-        run_dir=os.path.join(cargs.work_dir, env, "score_profit", compare._seeds_dir(cargs.seeds)),
-    )
+    cfg = _score_run(cargs, env, "score_profit", env_options=(*options, "reward='profit'"))
     compare.run_full(cfg, cargs.eval_episodes)
     return cfg.run_dir
 
