@@ -2,8 +2,8 @@
 
 For ONE sample (the learner vmaps over the batch):
 
-    e_o   = q_phi(o)                    state encoder            (frozen HVAE when asrl=True)
-    e_a,i = mean of q_psi(z | o, a_i, c_i)  action encoder       (frozen HVAE when asrl=True)
+    e_o   = q_phi(o)                    state encoder     (the HVAE's when asrl=True, see below)
+    e_a,i = mean of q_psi(z | o, a_i, c_i)  action encoder (the HVAE's when asrl=True)
     e_i   = p_w(e_o, e_a,i)             pairwise interaction MLP          -> params["p_w"]
     e^(m) = m masked GAT layers, Theta^(l) = MLP(s^t) (hypernet=True)    -> params["hyper"]
                                   or plain learned weights (hypernet=False) -> params["gat"]
@@ -13,12 +13,14 @@ For ONE sample (the learner vmaps over the batch):
 GAT) that Fig. 12 visualises; it runs the same modules as ``__call__``, so it reads the same
 parameters and adds none.
 
-With ``asrl=True`` the HVAE parameters are an ARGUMENT (wrapped in ``stop_gradient``), never
-part of the critic's parameters: they are frozen by construction. With ``asrl=False`` the
-critic owns an encoder of the same architecture (params["encoder"]) trained with it, and
-ignores ``hvae_params``; ``c`` is still an input (pass e.g.
-``agents.score.networks.random_space_codes``). Transfer (§4.3) fine-tunes ``FINETUNE_SUBTREES``
-only (see ``finetune_mask``).
+With ``asrl=True, finetune_asrl=False`` (the paper's SCORE) the HVAE parameters are an ARGUMENT
+(wrapped in ``stop_gradient``), never part of the critic's parameters: they are frozen by
+construction. Otherwise the critic owns an encoder of the same architecture (params["encoder"])
+trained with it, and ignores ``hvae_params``: with ``finetune_asrl=True`` that encoder starts as
+a copy of the ASRL HVAE's encoders (``agents.score.networks.init_state`` copies them in) and ``c``
+are the ASRL codes; with ``asrl=False`` (the AL+HN ablation) it starts from scratch and ``c`` is
+still an input (pass e.g. ``agents.score.networks.random_space_codes``). Transfer (§4.3)
+fine-tunes ``FINETUNE_SUBTREES`` only (see ``finetune_mask``).
 """
 
 from __future__ import annotations
@@ -58,8 +60,12 @@ class CriticConfig:
       gat_layers: m, the number of GAT layers.
       aggregation: ``"attention"`` (GAT), ``"mean"`` or ``"sum"`` over active agents.
       hypernet: GAT weights from a hypernetwork of the state (True) or plain params (False).
-      asrl: use the frozen pre-trained HVAE encoders (True) or own encoders trained from
-        scratch with the critic (False).
+      asrl: the critic's encoders and codes c_i come from the pre-trained HVAE (True) or are
+        trained from scratch with the critic (False, the AL+HN ablation).
+      finetune_asrl: with ``asrl``, the critic's encoders start as the HVAE's and train with
+        the critic (True), instead of staying frozen (False, the paper's SCORE). The codes c_i
+        stay ASRL's either way, so transfer embeds new sub-spaces as before. Without ``asrl``
+        the encoders always train (from scratch), so this switch has no effect there.
       hyper_hidden: hidden width of the hypernetwork MLP.
     """
 
@@ -69,6 +75,7 @@ class CriticConfig:
     aggregation: Literal["attention", "mean", "sum"] = "attention"
     hypernet: bool = True
     asrl: bool = True
+    finetune_asrl: bool = False
     hyper_hidden: int = 32
 
     def __post_init__(self):
@@ -78,6 +85,11 @@ class CriticConfig:
             )
         if self.gat_layers < 1:
             raise ValueError(f"gat_layers must be >= 1, got {self.gat_layers}")
+
+    @property
+    def frozen_encoders(self) -> bool:
+        """True when the critic reads the frozen HVAE (its params an argument, not its own)."""
+        return self.asrl and not self.finetune_asrl
 
 
 @struct.dataclass
@@ -190,7 +202,7 @@ class GraphCritic(nn.Module):
           dim_mask: ``[n, width]`` bool real columns.
           c: ``[n, c_dim]`` sub-space embeddings.
           mask: ``[n]`` bool, active agents (failed / dropped / padded agents False).
-          hvae_params: the HVAE ``"params"`` (required when ``asrl=True``, ignored otherwise).
+          hvae_params: the HVAE ``"params"`` (required with frozen encoders, else ignored).
           return_attention: also return the attention weights.
           return_embeddings: also return the agent embeddings (``AgentEmbeddings``).
 
@@ -199,7 +211,7 @@ class GraphCritic(nn.Module):
           ``(q [], alpha [m, n, n], AgentEmbeddings)`` without the parts not asked for.
         """
         cfg = self.config
-        if cfg.asrl:
+        if cfg.frozen_encoders:
             if hvae_params is None:
                 raise ValueError(
                     "CriticConfig.asrl=True needs the trained HVAE params (hvae_params); got None"
@@ -262,7 +274,7 @@ class TwinCritic(nn.Module):
 def finetune_mask(params: Any) -> Any:
     """Pytree of bools over critic params (GraphCritic or TwinCritic): True on the subtrees
     transfer fine-tunes (``p_w``, ``gat`` / ``hyper``, ``f_xi``, §4.3), False elsewhere
-    (the critic's own encoder when ``asrl=False``). Use with ``optax.masked`` or
+    (the critic's own encoder when it has one). Use with ``optax.masked`` or
     ``optax.multi_transform``."""
 
     def mark(path, _):

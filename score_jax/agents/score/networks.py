@@ -2,7 +2,8 @@
 ASRL encoders, the per-sub-space SAC actors, and their optimisers.
 
 With ``critic.asrl=False`` the encoders are trained from scratch inside the critic and the
-sub-space codes c_i are free parameters learned with the critic.
+sub-space codes c_i are free parameters learned with the critic; with ``critic.finetune_asrl``
+the critic's encoders start as the HVAE's and train with it (the codes c_i stay ASRL's).
 """
 
 from __future__ import annotations
@@ -110,6 +111,19 @@ class ScoreNetworks:
         return jax.vmap(twins, in_axes=(None, 0, 0, 0))(critic.net["critics"], obs, action, mask)
 
 
+def with_asrl_encoders(net: Any, hvae_params: Any) -> Any:
+    """The twin critic's params ``net`` with both twins' own encoders (``critics/encoder``, the
+    modules the critic calls: q_phi's state encoder and q_psi) replaced by the trained HVAE's, so
+    fine-tuning (``CriticConfig.finetune_asrl``) starts from ASRL's representation."""
+    twins = net["critics"]
+    own = twins["encoder"]
+    copied = {
+        name: jax.tree.map(lambda leaf, src: jnp.broadcast_to(src, leaf.shape), own[name], hvae)
+        for name, hvae in ((name, hvae_params[name]) for name in own)
+    }
+    return {**net, "critics": {**twins, "encoder": copied}}
+
+
 def make_optimizers(cfg: ScoreConfig):
     clip = optax.clip_by_global_norm(cfg.grad_clip)
     return (
@@ -137,6 +151,8 @@ def init_state(
     net = nets.critic.init(
         key_critic, obs, actions, consts.dim_mask, c, consts.valid, consts.critic_inputs.hvae_params
     )["params"]
+    if cfg.critic.asrl and cfg.critic.finetune_asrl:
+        net = with_asrl_encoders(net, consts.critic_inputs.hvae_params)
     critic = CriticVars(net, free_c)
     actor_opt, critic_opt, alpha_opt = optimizers or make_optimizers(cfg)
     log_alpha = jnp.full(
