@@ -364,3 +364,24 @@ def test_render_frames_and_gif(env, long_rollout, tmp_path):
     assert len(written["png"]) == 2 and written["gif"][0].exists()
     frame = iio.imread(written["png"][0])
     assert frame.shape == (72, 96, 3) and frame.std() > 1.0  # not a blank image
+
+
+def test_simulation_imports_without_an_opengl_library():
+    """Without libOSMesa (and no DISPLAY) the package must not pick MUJOCO_GL=osmesa, which
+    would make ``import mujoco`` itself fail: training needs no OpenGL, only rendering does."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import ctypes.util\n"
+        "ctypes.util.find_library = lambda name: None  # a machine without libosmesa6\n"
+        "import os, envs.spider, mujoco\n"
+        "print(os.environ.get('MUJOCO_GL', 'unset'))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY")}
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "unset"
