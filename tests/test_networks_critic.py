@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from score_jax.agents.score.networks import with_asrl_encoders
 from score_jax.networks import (
     HVAE,
     CriticConfig,
@@ -279,6 +280,32 @@ def test_twin_critic(hvae_params, inputs):
     batch = jax.tree_util.tree_map(lambda x: jnp.stack([x, x, x]), inputs)
     qb = jax.jit(jax.vmap(lambda *a: twin.apply({"params": params}, *a, hvae_params)))(*batch)
     assert qb.shape == (3, 2)
+
+
+def test_finetuned_asrl_encoders_start_as_the_hvae_and_train(hvae_params, inputs):
+    """finetune_asrl: the twin critic owns encoders copied from the HVAE, so at the start it
+    computes exactly the frozen critic's Q (same other params), and they get gradients while
+    the HVAE itself is untouched; transfer keeps them frozen (finetune_mask)."""
+    frozen_twin = TwinCritic(CCFG, HCFG, OBS, WIDTH)
+    ft_cfg = dataclasses.replace(CCFG, finetune_asrl=True)
+    ft_twin = TwinCritic(ft_cfg, HCFG, OBS, WIDTH)
+    key = jax.random.PRNGKey(5)
+    frozen_params = frozen_twin.init(key, *inputs, hvae_params)["params"]
+    ft_params = with_asrl_encoders(ft_twin.init(key, *inputs, None)["params"], hvae_params)
+    encoder = ft_params["critics"]["encoder"]
+    assert set(encoder) == set(hvae_params)
+    for twin in (0, 1):
+        jax.tree.map(
+            lambda e, h, t=twin: np.testing.assert_array_equal(e[t], h), encoder, hvae_params
+        )
+    # Same non-encoder params (same init key) + the HVAE's encoders = the frozen critic's Q.
+    q_frozen = frozen_twin.apply({"params": frozen_params}, *inputs, hvae_params)
+    q_ft = ft_twin.apply({"params": ft_params}, *inputs, None)
+    np.testing.assert_allclose(q_ft, q_frozen, rtol=1e-5, atol=1e-6)
+    g = jax.grad(lambda p: ft_twin.apply({"params": p}, *inputs, None).sum())(ft_params)
+    leaves = jax.tree_util.tree_leaves(g["critics"]["encoder"])
+    assert any(np.any(np.asarray(x) != 0) for x in leaves)
+    assert not any(jax.tree_util.tree_leaves(finetune_mask(ft_params)["critics"]["encoder"]))
 
 
 @pytest.mark.parametrize(

@@ -67,6 +67,8 @@ class CriticConfig:
         stay ASRL's either way, so transfer embeds new sub-spaces as before. Without ``asrl``
         the encoders always train (from scratch), so this switch has no effect there.
       hyper_hidden: hidden width of the hypernetwork MLP.
+      layer_norm: a LayerNorm after every hidden layer of p_w, f_xi and the hypernetwork (a
+        normalised critic, as SimBa / BRO / CrossQ).
     """
 
     hidden: int = 64
@@ -77,6 +79,7 @@ class CriticConfig:
     asrl: bool = True
     finetune_asrl: bool = False
     hyper_hidden: int = 32
+    layer_norm: bool = False
 
     def __post_init__(self):
         if self.aggregation not in AGGREGATIONS:
@@ -133,11 +136,13 @@ class HyperNet(nn.Module):
 
     dims: tuple[int, ...]
     hidden: int
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, state: jax.Array) -> list:
         size = gat_num_params(self.dims)
-        h = nn.relu(nn.Dense(self.hidden, name="dense_0")(state))
+        h = nn.Dense(self.hidden, name="dense_0")(state)
+        h = nn.relu(nn.LayerNorm(name="norm_0")(h) if self.layer_norm else h)
         bias_init = lambda key, shape, dtype=jnp.float32: flatten_gat_weights(
             init_gat_weights(key, self.dims)
         ).astype(dtype)
@@ -228,18 +233,18 @@ class GraphCritic(nn.Module):
             e_a = encoder.encode_action(obs, actions, dim_mask, c)[0]
         # e_i = p_w(e_o, e_a,i) on the concatenation [e_o, e_a,i], e_o's product computed once
         # for all agents
-        e = MLP((cfg.hidden,), cfg.agent_dim, name="p_w")((e_o, e_a))
+        e = MLP((cfg.hidden,), cfg.agent_dim, layer_norm=cfg.layer_norm, name="p_w")((e_o, e_a))
 
         dims = self._gat_dims()
         if cfg.hypernet:
-            weights = HyperNet(dims, cfg.hyper_hidden, name="hyper")(obs)
+            weights = HyperNet(dims, cfg.hyper_hidden, cfg.layer_norm, name="hyper")(obs)
         else:
             weights = unflatten_gat_weights(GATParams(dims, name="gat")(), dims)
         x, alpha = gat_stack(weights, e, mask, cfg.aggregation)
 
         w = jnp.asarray(mask, jnp.float32)[:, None]
         pooled = jnp.sum(x * w, 0) / jnp.maximum(jnp.sum(w), 1.0)  # Mean over active agents
-        q = MLP((cfg.hidden,), 1, name="f_xi")(pooled)[0]
+        q = MLP((cfg.hidden,), 1, layer_norm=cfg.layer_norm, name="f_xi")(pooled)[0]
         extra = (alpha,) if return_attention else ()
         extra += (AgentEmbeddings(e, x),) if return_embeddings else ()
         return (q, *extra) if extra else q

@@ -40,6 +40,9 @@ class MLP(nn.Module):
     weights is shared by every agent / set element without a vmap. The input may also be a
     sequence of parts to concatenate on the last axis, broadcast on the leading ones
     (``ConcatDense``: same parameters as the concatenated input, less work).
+
+    ``layer_norm``: a LayerNorm between every hidden Dense and its activation (the normalised
+    critics of SimBa, BRO and CrossQ; params ``norm_<i>``).
     """
 
     hidden: Sequence[int]
@@ -47,12 +50,16 @@ class MLP(nn.Module):
     activation: Callable[[jax.Array], jax.Array] = nn.relu
     kernel_init: Callable = nn.initializers.lecun_normal()
     out_kernel_init: Callable | None = None
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array | Sequence[jax.Array]) -> jax.Array:
         dense = lambda x: ConcatDense if isinstance(x, (tuple, list)) else nn.Dense
         for i, width in enumerate(self.hidden):
-            x = self.activation(dense(x)(width, kernel_init=self.kernel_init, name=f"dense_{i}")(x))
+            x = dense(x)(width, kernel_init=self.kernel_init, name=f"dense_{i}")(x)
+            if self.layer_norm:
+                x = nn.LayerNorm(name=f"norm_{i}")(x)
+            x = self.activation(x)
         out_init = self.out_kernel_init or self.kernel_init
         return dense(x)(self.out_dim, kernel_init=out_init, name="out")(x)
 
