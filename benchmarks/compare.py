@@ -222,16 +222,28 @@ def final_returns(run, n_episodes: int) -> list[float]:
     return returns.reshape(run.num_seeds, -1).mean(axis=1).tolist()
 
 
-def run_full(cfg: TrainConfig, n_episodes: int) -> dict:
+def run_full(cfg: TrainConfig, n_episodes: int, report=None, log=None) -> dict:
     """Train one run of every seed (or reuse its result.json); each seed's final deterministic
-    return and evaluation curve."""
-    path, key = os.path.join(cfg.run_dir, "result.json"), _key(cfg, episodes=n_episodes)
+    return and evaluation curve, and ``wall_s``: the wall time of ``train`` (set-up, ASRL and
+    compilation included; absent from results cached before it was recorded).
+
+    ``report(run) -> dict``: more numbers of the trained run (e.g. its best policies), stored
+    under ``"report"``; its ``__name__`` is part of the cache key. ``log``: where the run's own
+    lines go (header, evaluations); default nowhere."""
+    extra = {} if report is None else {"report": report.__name__}
+    path = os.path.join(cfg.run_dir, "result.json")
+    key = _key(cfg, episodes=n_episodes, **extra)
     cached = _cached(path, key)
     if cached is not None:
         return cached
     _fresh(cfg.run_dir)
-    run = train(cfg, log=lambda *a: None)
+    t0 = time.time()
+    run = train(cfg, log=log or (lambda *a: None))
+    wall = time.time() - t0
     result = {"key": key, "returns": final_returns(run, n_episodes), "curves": _curves(cfg.run_dir)}
+    result["wall_s"] = wall
+    if report is not None:
+        result["report"] = report(run)
     json.dump(result, open(path, "w"))
     return result
 
