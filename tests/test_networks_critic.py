@@ -27,7 +27,9 @@ from score_jax.networks.mlp import MLP
 
 OBS, WIDTH, N = 5, 4, 4
 HCFG = HVAEConfig(obs_embed_dim=8, space_embed_dim=4, latent_dim=4, hidden=16, predict_steps=2)
-CCFG = CriticConfig(hidden=16, agent_dim=8, gat_layers=2, hyper_hidden=8)
+# finetune_asrl=False: most tests here check the frozen-HVAE path (the paper's text); the
+# fine-tuned encoders have their own test.
+CCFG = CriticConfig(hidden=16, agent_dim=8, gat_layers=2, hyper_hidden=8, finetune_asrl=False)
 DIM_MASK = jnp.array([[1, 1, 0, 0], [1, 1, 1, 0], [1, 0, 0, 0], [1, 1, 1, 1]], bool)
 
 

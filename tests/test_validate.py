@@ -21,7 +21,7 @@ from score_jax.evaluation.transfer import TransferArgs
 from score_jax.run import driver
 from score_jax.run import validate as validate_module
 from score_jax.run.checkpoint import Checkpointer, dump_json
-from score_jax.run.config import TrainConfig, to_dict
+from score_jax.run.config import TrainConfig, from_saved, to_dict
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -280,3 +280,16 @@ def test_resume_of_a_brax_run_is_refused_up_front(tmp_path, capsys, no_work):
     dump_json(str(run_dir / "config.json"), to_dict(TrainConfig(env="probe", algo="ppo")))
     code, lines = _train(["--resume", str(run_dir)], capsys)
     assert code == 2 and len(lines) == 1 and "cannot be continued exactly" in lines[0]
+
+
+def test_saved_config_keeps_the_defaults_it_ran_with():
+    """A run saved before a default changed rebuilds as it ran: a missing key reads the old
+    value (CHANGED_DEFAULTS), a present one its own, and a current save round-trips."""
+    saved = to_dict(TrainConfig())
+    assert from_saved(saved) == TrainConfig()
+    assert TrainConfig().score.critic.finetune_asrl  # the current default ...
+    del saved["score"]["critic"]["finetune_asrl"]
+    old = from_saved(saved)
+    assert old.score.critic.finetune_asrl is False  # ... and what a run saved before it ran
+    assert "finetune_asrl" not in saved["score"]["critic"]  # the caller's dict is untouched
+    assert old.score.init_alpha == TrainConfig().score.init_alpha  # saved keys are kept

@@ -13,7 +13,7 @@ For ONE sample (the learner vmaps over the batch):
 GAT) that Fig. 12 visualises; it runs the same modules as ``__call__``, so it reads the same
 parameters and adds none.
 
-With ``asrl=True, finetune_asrl=False`` (the paper's SCORE) the HVAE parameters are an ARGUMENT
+With ``asrl=True, finetune_asrl=False`` (the paper's text) the HVAE parameters are an ARGUMENT
 (wrapped in ``stop_gradient``), never part of the critic's parameters: they are frozen by
 construction. Otherwise the critic owns an encoder of the same architecture (params["encoder"])
 trained with it, and ignores ``hvae_params``: with ``finetune_asrl=True`` that encoder starts as
@@ -63,9 +63,11 @@ class CriticConfig:
       asrl: the critic's encoders and codes c_i come from the pre-trained HVAE (True) or are
         trained from scratch with the critic (False, the AL+HN ablation).
       finetune_asrl: with ``asrl``, the critic's encoders start as the HVAE's and train with
-        the critic (True), instead of staying frozen (False, the paper's SCORE). The codes c_i
-        stay ASRL's either way, so transfer embeds new sub-spaces as before. Without ``asrl``
-        the encoders always train (from scratch), so this switch has no effect there.
+        the critic (True, the default: a frozen HVAE left the critic almost blind to actions,
+        see the README's design notes), instead of staying frozen (False, the paper's text).
+        The codes c_i stay ASRL's either way, so transfer embeds new sub-spaces as before.
+        Without ``asrl`` the encoders always train (from scratch), so this switch has no effect
+        there.
       hyper_hidden: hidden width of the hypernetwork MLP.
       layer_norm: a LayerNorm after every hidden layer of p_w, f_xi and the hypernetwork (a
         normalised critic, as SimBa / BRO / CrossQ).
@@ -77,7 +79,7 @@ class CriticConfig:
     aggregation: Literal["attention", "mean", "sum"] = "attention"
     hypernet: bool = True
     asrl: bool = True
-    finetune_asrl: bool = False
+    finetune_asrl: bool = True
     hyper_hidden: int = 32
     layer_norm: bool = False
 

@@ -21,7 +21,7 @@ from score_jax.run.config import (
     RunSpec,
     TrainConfig,
     TransferSpec,
-    from_dict,
+    from_saved,
     prior_agents,
     resolve,
     to_dict,
@@ -215,7 +215,7 @@ def restore_run(run_dir: str, log=print, policy: str = "last") -> Run:
         raise ValueError(f"policy must be 'last' or 'best', got {policy!r}")
     ckpt = Checkpointer(run_dir, create=False)  # reads only: "no run in ..." when absent
     config, transfer = saved_run_config(run_dir)
-    cfg = from_dict(TrainConfig, config)
+    cfg = from_saved(config)
     grown = saved_transfer({"transfer": transfer})
     run = build(cfg, None, run_dir, restoring=True, log=log, transfer=grown)
     try:  # the newest usable checkpoint (skipped ones: one warning line)

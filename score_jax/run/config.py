@@ -306,6 +306,32 @@ def to_dict(cfg) -> dict:
     return dataclasses.asdict(cfg)
 
 
+# Options whose default changed, with the value a run saved before the change used: a saved
+# configuration that lacks the key ran with that value, so it rebuilds (and restores) as it ran.
+CHANGED_DEFAULTS: dict[tuple[str, ...], object] = {
+    ("score", "critic", "finetune_asrl"): False,
+}
+
+
+def from_saved(d: dict) -> TrainConfig:
+    """A run's saved ``TrainConfig`` (``to_dict`` output, possibly written by an older version):
+    keys missing from it take the value they had then (``CHANGED_DEFAULTS``), the others the
+    current defaults."""
+    d = json_copy(d)
+    for path, old in CHANGED_DEFAULTS.items():
+        node = d
+        for key in path[:-1]:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.setdefault(path[-1], old)
+    return from_dict(TrainConfig, d)
+
+
+def json_copy(d: dict) -> dict:
+    """A deep copy of a JSON-like dict (nested dicts copied, leaves shared)."""
+    return {k: json_copy(v) if isinstance(v, dict) else v for k, v in d.items()}
+
+
 def from_dict(cls, d: dict):
     """Rebuild a (nested) frozen dataclass from ``to_dict`` output, ignoring unknown keys."""
     kwargs = {}

@@ -33,7 +33,7 @@ import jax
 import envs
 from score_jax import registry
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, saved_run_config
-from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_dict
+from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_saved
 from score_jax.run.external import RESUME_ERROR
 
 MAX_SEED = 2**31 - 1 - 100_000  # the run derives further seeds by adding up to 50_000
@@ -391,7 +391,7 @@ def resume_config(
         saved_dict, transfer_dict = saved_run_config(run_dir)
     except CheckpointError as e:
         return None, None, None, [f"--resume {run_dir}: {e}"]
-    saved = from_dict(TrainConfig, saved_dict)
+    saved = from_saved(saved_dict)
     steps = committed_steps(run_dir)
     done = steps[-1] if steps else 0
     problems, record = [], None
@@ -467,7 +467,7 @@ def _source_run(option: str, run_dir: str) -> tuple[TrainConfig | None, list[str
         saved, _ = saved_run_config(run_dir)
     except CheckpointError as e:
         return None, [f"{option} {run_dir}: {e}"]
-    return from_dict(TrainConfig, saved), []
+    return from_saved(saved), []
 
 
 def validate_robustness_args(args) -> list[str]:

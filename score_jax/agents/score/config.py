@@ -19,6 +19,12 @@ class ScoreConfig(SACSettings):
     actor_lr: float = 1e-4
     """Adam step size of the actors (a tenth of the critic's: Adam moves the actors by about
     this much per update even when the critic's action gradient is mostly noise)."""
+    init_alpha: float = 0.001
+    """Initial entropy temperature of every agent. Small, so that the entropy bonus does not
+    outweigh the reward at the start: at 0.1 the greenhouse's actors opened their Gaussians to
+    the log-std ceiling (tanh then plays bang-bang, the default-centred start is lost) and
+    learning waited for alpha to decay (docs/learning.md, entry 6). Alpha then follows the
+    entropy targets as before."""
     critic_lr: float = 1e-3
     """Adam step size of the critics (and of c_i when ASRL is off)."""
     hvae: HVAEConfig = HVAEConfig()
