@@ -10,6 +10,7 @@ once, at the start of a run, and everything below reads the ``RunSpec``.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import os
 from typing import Literal
@@ -317,7 +318,7 @@ def from_saved(d: dict) -> TrainConfig:
     """A run's saved ``TrainConfig`` (``to_dict`` output, possibly written by an older version):
     keys missing from it take the value they had then (``CHANGED_DEFAULTS``), the others the
     current defaults."""
-    d = json_copy(d)
+    d = copy.deepcopy(d)
     for path, old in CHANGED_DEFAULTS.items():
         node = d
         for key in path[:-1]:
@@ -325,11 +326,6 @@ def from_saved(d: dict) -> TrainConfig:
         if isinstance(node, dict):
             node.setdefault(path[-1], old)
     return from_dict(TrainConfig, d)
-
-
-def json_copy(d: dict) -> dict:
-    """A deep copy of a JSON-like dict (nested dicts copied, leaves shared)."""
-    return {k: json_copy(v) if isinstance(v, dict) else v for k, v in d.items()}
 
 
 def from_dict(cls, d: dict):
