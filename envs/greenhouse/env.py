@@ -151,9 +151,19 @@ class GreenhouseEnv(CompositeEnv):
         """The learners' reward scale: the paper's cumulative reward reaches ~25 per day (returns
         ~1000), so it is scaled to keep Q-values near 100; other modes are ~1 per day. Decisions
         are held 8 days: the crop and the slab integrate actions over days, so one day's
-        sub-action barely moves a season. Presets: a budget that finishes on a laptop CPU."""
+        sub-action barely moves a season. Exploration noise is held for the whole season
+        (gSDE-style, one draw per episode): the crop responds to sustained climates, so noise
+        redrawn every decision averages out before the harvest shows its effect (the study log,
+        docs/learning.md, measures the difference). Presets: a budget that finishes on a laptop
+        CPU."""
         scale = 0.05 if self.config.reward == "cumulative" else 1.0
-        return EnvHints(reward_scale=scale, action_repeat=8, total_steps=144_000, eval_every=16_000)
+        return EnvHints(
+            reward_scale=scale,
+            action_repeat=8,
+            exploration_hold=self.config.season_days,
+            total_steps=144_000,
+            eval_every=16_000,
+        )
 
     def reference_policies(self) -> dict[str, ReferencePolicy]:
         """The documented grower heuristic (``envs.greenhouse.expert``)."""

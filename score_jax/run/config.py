@@ -317,8 +317,14 @@ CHANGED_DEFAULTS: dict[tuple[str, ...], object] = {
 def from_saved(d: dict) -> TrainConfig:
     """A run's saved ``TrainConfig`` (``to_dict`` output, possibly written by an older version):
     keys missing from it take the value they had then (``CHANGED_DEFAULTS``), the others the
-    current defaults."""
+    current defaults. An exploration hold the run took from its environment's hints (saved as
+    None, resolved in ``d["resolved"]``) is pinned to the resolved value, so a resumed run
+    explores as it did even after the environment's suggestion changed."""
     d = copy.deepcopy(d)
+    held = (d.get("resolved") or {}).get("exploration_hold")
+    off = d.get("off_policy")
+    if held is not None and isinstance(off, dict) and off.get("exploration_hold") is None:
+        off["exploration_hold"] = int(held)
     for path, old in CHANGED_DEFAULTS.items():
         node = d
         for key in path[:-1]:
