@@ -293,9 +293,10 @@ def test_saved_config_keeps_the_defaults_it_ran_with():
     assert old.score.critic.finetune_asrl is False  # ... and what a run saved before it ran
     assert "finetune_asrl" not in saved["score"]["critic"]  # the caller's dict is untouched
     assert old.score.init_alpha == TrainConfig().score.init_alpha  # saved keys are kept
-    # a hold taken from the environment's hints is pinned to the value it resolved to then
-    saved = {**to_dict(TrainConfig()), "resolved": {"exploration_hold": 1}}
-    assert saved["off_policy"]["exploration_hold"] is None
+    # options taken from the environment's hints are pinned to the values they resolved to then
+    saved = {**to_dict(TrainConfig()), "resolved": {"exploration_hold": 1, "action_repeat": 8}}
+    assert saved["off_policy"]["exploration_hold"] is None and saved["action_repeat"] is None
     assert from_saved(saved).off_policy.exploration_hold == 1
+    assert from_saved(saved).action_repeat == 8
     saved["off_policy"]["exploration_hold"] = 4  # ... and one given on the command line kept
     assert from_saved(saved).off_policy.exploration_hold == 4

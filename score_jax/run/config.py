@@ -314,17 +314,28 @@ CHANGED_DEFAULTS: dict[tuple[str, ...], object] = {
 }
 
 
+# Options whose None means "the environment's hint" (``EnvHints``), with their key in a saved
+# run's ``resolved`` record: a hint can change, so a saved run is rebuilt with what it resolved to.
+HINTED_OPTIONS: dict[tuple[str, ...], str] = {
+    ("action_repeat",): "action_repeat",
+    ("off_policy", "exploration_hold"): "exploration_hold",
+}
+
+
 def from_saved(d: dict) -> TrainConfig:
     """A run's saved ``TrainConfig`` (``to_dict`` output, possibly written by an older version):
     keys missing from it take the value they had then (``CHANGED_DEFAULTS``), the others the
-    current defaults. An exploration hold the run took from its environment's hints (saved as
-    None, resolved in ``d["resolved"]``) is pinned to the resolved value, so a resumed run
-    explores as it did even after the environment's suggestion changed."""
+    current defaults; options it left to the environment's hints (``HINTED_OPTIONS``) take the
+    values they resolved to (``d["resolved"]``), so a resumed run trains as it did even after
+    the environment's suggestion changed."""
     d = copy.deepcopy(d)
-    held = (d.get("resolved") or {}).get("exploration_hold")
-    off = d.get("off_policy")
-    if held is not None and isinstance(off, dict) and off.get("exploration_hold") is None:
-        off["exploration_hold"] = int(held)
+    resolved = d.get("resolved") or {}
+    for path, key in HINTED_OPTIONS.items():
+        node = d
+        for name in path[:-1]:
+            node = node.get(name) if isinstance(node, dict) else None
+        if isinstance(node, dict) and node.get(path[-1]) is None and resolved.get(key) is not None:
+            node[path[-1]] = int(resolved[key])
     for path, old in CHANGED_DEFAULTS.items():
         node = d
         for key in path[:-1]:
