@@ -63,6 +63,7 @@ class EnvHints:
         order 100 whatever the reward's units).
       action_repeat: environment steps a learner's decision is held for (``ActionRepeat``).
       exploration_hold: environment steps an exploration draw is held for (gSDE-style).
+      updates_per_step: gradient updates per vectorised step of the off-policy trainer.
       total_steps: preset training budget, in decisions (steps of the action-repeated env).
       eval_every: preset interval of deterministic evaluations, in decisions (0 = at the end).
     """
@@ -70,6 +71,7 @@ class EnvHints:
     reward_scale: float = 1.0
     action_repeat: int = 1
     exploration_hold: int = 1
+    updates_per_step: int = 2
     total_steps: int = 100_000
     eval_every: int = 0
 

@@ -8,7 +8,7 @@ import pytest
 
 import envs
 from envs.wrappers import ActionRepeat, unwrapped, with_action_repeat
-from score_jax.run.config import TrainConfig, resolve
+from score_jax.run.config import OffPolicyConfig, TrainConfig, resolve
 
 
 def test_repeat_sums_rewards_and_ends_with_the_wrapped_episode():
@@ -57,6 +57,13 @@ def test_repeat_one_is_the_env_itself_and_suggestions_resolve():
     assert wrapped.expert_action.__self__ is greenhouse  # other attributes are the wrapped env's
     with pytest.raises(ValueError, match="action_repeat"):
         resolve(TrainConfig(action_repeat=-1), greenhouse)
+    # the update schedule is a hint too: one update per step on the greenhouse, two elsewhere
+    assert resolve(TrainConfig(), greenhouse).updates_per_step == 1
+    assert resolve(TrainConfig(env="probe"), env).updates_per_step == 2
+    given = TrainConfig(off_policy=OffPolicyConfig(updates_per_step=3))
+    assert resolve(given, greenhouse).updates_per_step == 3
+    with pytest.raises(ValueError, match="updates_per_step"):
+        resolve(TrainConfig(off_policy=OffPolicyConfig(updates_per_step=0)), greenhouse)
 
 
 def test_repeated_greenhouse_season_returns_the_daily_return():

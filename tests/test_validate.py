@@ -300,3 +300,9 @@ def test_saved_config_keeps_the_defaults_it_ran_with():
     assert from_saved(saved).action_repeat == 8
     saved["off_policy"]["exploration_hold"] = 4  # ... and one given on the command line kept
     assert from_saved(saved).off_policy.exploration_hold == 4
+    # a run saved when the update schedule was a plain default of 2 stored it, so it keeps it
+    saved["off_policy"]["updates_per_step"] = 2
+    assert from_saved(saved).off_policy.updates_per_step == 2
+    saved["off_policy"]["updates_per_step"] = None  # a hinted one resumes as it resolved
+    saved["resolved"]["updates_per_step"] = 1
+    assert from_saved(saved).off_policy.updates_per_step == 1

@@ -176,7 +176,7 @@ def build(
         eval_every=spec.eval_every,
         eval_episodes=cfg.eval_episodes,
         num_envs=cfg.off_policy.num_envs,
-        updates_per_step=cfg.off_policy.updates_per_step,
+        updates_per_step=spec.updates_per_step,
         trainable=trainable_agents(env.space, agent_index, transfer),
         prior=prior_agents(cfg, [env.space.names[i] for i in agent_index], transfer),
         transfer_variant=cfg.single.transfer_variant,
@@ -191,7 +191,11 @@ def build(
     if algo.train_external is not None:  # brax SAC / PPO, H-PPO: their own loop (run.external)
         trainer = ExternalTrainer(algo.off_policy)
     else:
-        schedule = dataclasses.replace(cfg.off_policy, exploration_hold=spec.exploration_hold)
+        schedule = dataclasses.replace(
+            cfg.off_policy,
+            exploration_hold=spec.exploration_hold,
+            updates_per_step=spec.updates_per_step,
+        )
         # Seeds over the devices when they divide evenly (whole runs per device), else each
         # seed's environments and batches (see SeedTrainer).
         by_seed = mesh is not None and cfg.num_seeds % mesh.size == 0

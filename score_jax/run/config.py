@@ -37,8 +37,9 @@ class OffPolicyConfig:
     """Ring buffer size in transitions."""
     learning_starts: int = 400
     """Transitions collected with the uniform random policy before updates start."""
-    updates_per_step: int = 2
-    """Gradient updates per vectorised environment step."""
+    updates_per_step: int | None = None
+    """Gradient updates per vectorised environment step; None = the environment's suggestion
+    (``env.hints.updates_per_step``: 1 on the greenhouse, 2 elsewhere)."""
     steps_per_epoch: int = 20
     """Vectorised environment steps per jitted epoch call."""
     train_failures: int = 0
@@ -241,7 +242,7 @@ class RunSpec:
       run_dir: where everything goes.
       total_steps, eval_every, checkpoint_every: decisions (steps of the action-repeated env).
       action_repeat: environment steps per decision; exploration_hold: steps an exploration
-        draw is held; width: the agents' padded action width.
+        draw is held; updates_per_step: gradient updates per vectorised step; width: the agents' padded action width.
       steps_per_epoch: decisions per jitted epoch of the off-policy trainer.
     """
 
@@ -251,6 +252,7 @@ class RunSpec:
     checkpoint_every: int
     action_repeat: int
     exploration_hold: int
+    updates_per_step: int
     width: int
     steps_per_epoch: int
 
@@ -276,6 +278,13 @@ def resolve(cfg: TrainConfig, env) -> RunSpec:
     )
     if hold < 1:
         raise ValueError(f"exploration_hold must be >= 1, got {hold}")
+    updates = (
+        hints.updates_per_step
+        if cfg.off_policy.updates_per_step is None
+        else cfg.off_policy.updates_per_step
+    )
+    if updates < 1:
+        raise ValueError(f"updates_per_step must be >= 1, got {updates}")
     width = env.space.max_dim if cfg.action_width is None else cfg.action_width
     if width < env.space.max_dim:
         raise ValueError(
@@ -294,6 +303,7 @@ def resolve(cfg: TrainConfig, env) -> RunSpec:
         checkpoint_every=int(ckpt),
         action_repeat=int(repeat),
         exploration_hold=int(hold),
+        updates_per_step=int(updates),
         width=int(width),
         steps_per_epoch=int(spe),
     )
@@ -319,6 +329,7 @@ CHANGED_DEFAULTS: dict[tuple[str, ...], object] = {
 HINTED_OPTIONS: dict[tuple[str, ...], str] = {
     ("action_repeat",): "action_repeat",
     ("off_policy", "exploration_hold"): "exploration_hold",
+    ("off_policy", "updates_per_step"): "updates_per_step",
 }
 
 

@@ -178,7 +178,8 @@ def describe_environment(name: str, overrides: dict | None = None) -> str:
         f"presets: budget {hints.total_steps} decisions, {evaluation}, action repeat "
         f"{hints.action_repeat} "
         f"({repeated.episode_length} decisions per episode), exploration hold "
-        f"{hints.exploration_hold}, reward scale {hints.reward_scale:g}",
+        f"{hints.exploration_hold}, {hints.updates_per_step} update(s) per step, reward scale "
+        f"{hints.reward_scale:g}",
         f"reference policies: {', '.join(['random', 'default', *env.reference_policies()])}",
         "",
         env.space.describe(),

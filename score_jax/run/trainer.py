@@ -110,6 +110,13 @@ class Trainer:
         )
         if self.hold < 1:
             raise ValueError(f"exploration_hold must be >= 1, got {config.exploration_hold}")
+        self.updates_per_step = int(
+            env.hints.updates_per_step
+            if config.updates_per_step is None
+            else config.updates_per_step
+        )
+        if self.updates_per_step < 1:
+            raise ValueError(f"updates_per_step must be >= 1, got {config.updates_per_step}")
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
@@ -215,7 +222,7 @@ class Trainer:
                 return self.algo.update(agent, batch, k_update, hyper)
 
             agent, metrics = jax.lax.scan(
-                one, agent, jax.random.split(key_upd, cfg.updates_per_step)
+                one, agent, jax.random.split(key_upd, self.updates_per_step)
             )
             return agent, jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), jnp.float32(1.0)
 
@@ -238,7 +245,7 @@ class Trainer:
             last_action=env_action,
             explore_keys=explore_keys,
             env_steps=env_steps,
-            updates=state.updates + cfg.updates_per_step * did.astype(jnp.int32),
+            updates=state.updates + self.updates_per_step * did.astype(jnp.int32),
         )
         return (state, hyper), (metrics, did, completed, jnp.mean(env_state.reward))
 
