@@ -242,7 +242,8 @@ class RunSpec:
       run_dir: where everything goes.
       total_steps, eval_every, checkpoint_every: decisions (steps of the action-repeated env).
       action_repeat: environment steps per decision; exploration_hold: steps an exploration
-        draw is held; updates_per_step: gradient updates per vectorised step; width: the agents' padded action width.
+        draw is held; updates_per_step: gradient updates per vectorised step; width: the
+        agents' padded action width.
       steps_per_epoch: decisions per jitted epoch of the off-policy trainer.
     """
 
