@@ -75,6 +75,14 @@ class EnvHints:
     total_steps: int = 100_000
     eval_every: int = 0
 
+    def pick(self, name: str, given: int | None) -> int:
+        """``given``, or this hint when it is None (a learner's option left to the environment);
+        a ValueError names the option when the result is below 1."""
+        value = int(getattr(self, name) if given is None else given)
+        if value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
+        return value
+
 
 # act(state) -> normalised [n, max_dim] action for ONE (unbatched) state: a scripted policy.
 ReferencePolicy = Callable[["EnvState"], jax.Array]

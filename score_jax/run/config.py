@@ -269,23 +269,9 @@ def resolve(cfg: TrainConfig, env) -> RunSpec:
     """``cfg``'s presets resolved against ``env`` (the environment before any action repeat)."""
     hints = env.hints
     total = hints.total_steps if cfg.total_steps is None else cfg.total_steps
-    repeat = hints.action_repeat if cfg.action_repeat is None else cfg.action_repeat
-    if repeat < 1:
-        raise ValueError(f"action_repeat must be >= 1, got {repeat}")
-    hold = (
-        hints.exploration_hold
-        if cfg.off_policy.exploration_hold is None
-        else cfg.off_policy.exploration_hold
-    )
-    if hold < 1:
-        raise ValueError(f"exploration_hold must be >= 1, got {hold}")
-    updates = (
-        hints.updates_per_step
-        if cfg.off_policy.updates_per_step is None
-        else cfg.off_policy.updates_per_step
-    )
-    if updates < 1:
-        raise ValueError(f"updates_per_step must be >= 1, got {updates}")
+    repeat = hints.pick("action_repeat", cfg.action_repeat)
+    hold = hints.pick("exploration_hold", cfg.off_policy.exploration_hold)
+    updates = hints.pick("updates_per_step", cfg.off_policy.updates_per_step)
     width = env.space.max_dim if cfg.action_width is None else cfg.action_width
     if width < env.space.max_dim:
         raise ValueError(
@@ -302,9 +288,9 @@ def resolve(cfg: TrainConfig, env) -> RunSpec:
         total_steps=int(total),
         eval_every=int(hints.eval_every if cfg.eval_every is None else cfg.eval_every),
         checkpoint_every=int(ckpt),
-        action_repeat=int(repeat),
-        exploration_hold=int(hold),
-        updates_per_step=int(updates),
+        action_repeat=repeat,
+        exploration_hold=hold,
+        updates_per_step=updates,
         width=int(width),
         steps_per_epoch=int(spe),
     )

@@ -101,22 +101,10 @@ class Trainer:
             raise ValueError(
                 f"algorithm has {algo.n_agents} agents but agent_index has {len(self.agent_index)}"
             )
-        # run.config.resolve has already resolved the hold of a run; None here (a trainer built
+        # run.config.resolve has already resolved these for a run; None here (a trainer built
         # directly) means the environment's suggestion, as there.
-        self.hold = int(
-            env.hints.exploration_hold
-            if config.exploration_hold is None
-            else config.exploration_hold
-        )
-        if self.hold < 1:
-            raise ValueError(f"exploration_hold must be >= 1, got {config.exploration_hold}")
-        self.updates_per_step = int(
-            env.hints.updates_per_step
-            if config.updates_per_step is None
-            else config.updates_per_step
-        )
-        if self.updates_per_step < 1:
-            raise ValueError(f"updates_per_step must be >= 1, got {config.updates_per_step}")
+        self.hold = env.hints.pick("exploration_hold", config.exploration_hold)
+        self.updates_per_step = env.hints.pick("updates_per_step", config.updates_per_step)
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
