@@ -177,3 +177,46 @@ def test_elbo_falls_on_greenhouse():
     assert elbo[-10:].mean() > elbo[:10].mean() + 100.0, (
         f"{elbo[:10].mean():.1f} -> {elbo[-10:].mean():.1f}"
     )
+
+
+def test_code_contrast_separates_sets():
+    """InfoNCE over the sets' halves: log S when codes coincide, ~0 when each set's halves are
+    far from the others', 0 for one set; its gradient pushes different sets' codes apart."""
+    from score_jax.networks.hvae import code_contrast
+
+    same = jnp.zeros((4, 3))
+    assert float(code_contrast(same, same, 1.0)) == pytest.approx(np.log(4.0), rel=1e-6)
+    apart = 10.0 * jnp.eye(4, 3)
+    assert float(code_contrast(apart, apart + 0.01, 1.0)) < 1e-6
+    assert float(code_contrast(jnp.ones((1, 3)), -jnp.ones((1, 3)), 1.0)) == 0.0
+    close = jnp.array([[0.0, 0.0], [0.1, 0.0]])
+
+    def spread(c):
+        return code_contrast(c, c, 1.0)
+
+    moved = close - 0.1 * jax.grad(spread)(close)
+    assert float(jnp.linalg.norm(moved[0] - moved[1])) > 0.1
+    assert float(spread(moved)) < float(spread(close))
+
+
+def test_code_contrast_weight_enters_the_loss(probe):
+    """The term is logged whatever its weight and added to the loss with it; the ELBO is eq. 2's
+    alone either way."""
+    from score_jax.networks.hvae import hvae_loss, init_hvae
+
+    fixed = jnp.array([False, False, True])
+    sets = collect_observation_sets(
+        probe, jax.random.PRNGKey(3), [0, 1], 4, 2, CFG.predict_steps, WIDTH, WARMUP, fixed
+    )
+    key = jax.random.PRNGKey(4)
+    base = HVAE(CFG, probe.observation_size, WIDTH)
+    params = init_hvae(base, jax.random.PRNGKey(5), sets)
+    _, m0 = hvae_loss(params, base, sets, key)
+    weighted = HVAE(
+        HVAEConfig(**{**CFG.__dict__, "code_contrast_weight": 2.0}), probe.observation_size, WIDTH
+    )
+    _, m2 = hvae_loss(params, weighted, sets, key)
+    assert 0.0 < float(m0.contrast) <= np.log(2.0) + 1e-6
+    assert float(m2.contrast) == pytest.approx(float(m0.contrast), rel=1e-6)
+    assert float(m2.elbo) == pytest.approx(float(m0.elbo), rel=1e-6)
+    assert float(m2.loss) == pytest.approx(float(m0.loss) + 2.0 * float(m0.contrast), rel=1e-5)

@@ -32,6 +32,12 @@ Choices the paper leaves open (documented here once):
   (on the targets); it stops c from memorising the set's own samples (the j elements of a
   fixing share a start state), so c describes the sub-space, not the sample. Embeddings
   (``space_embeddings``) use the whole set.
+* ``code_contrast_weight`` (default 0 = eq. 2's terms only) adds an InfoNCE term over the S
+  sets of a batch: the code of a set's context half must pick out the same set's target half
+  among all S target halves by distance (``code_contrast``). Eq. 2 rewards c only as far as
+  the decoders need it; sub-spaces of equal width whose effects differ little at first (the
+  greenhouse's temperature and CO2 hours) then get codes close together, and a critic that
+  conditions on c sees nearly the same agent twice.
 * Observation likelihoods are Gaussian with a learned per-dimension log-std (global
   parameters), so every term is in nats and the ELBO is a proper bound.
 """
@@ -64,6 +70,9 @@ class HVAEConfig:
       kl_weight: beta on both KL terms (1 = the ELBO of eq. 2).
       action_recon_weight: weight of log p(a | z, c) (see the module docstring; 0 = eq. 2).
       action_recon_std: fixed std of p(a | z, c), in normalised action units.
+      code_contrast_weight: weight of the InfoNCE term that separates the codes of different
+        sub-spaces (see the module docstring; 0 = off).
+      code_contrast_temperature: tau of that term's logits ``-||c_i - c_j||^2 / tau``.
       learning_rate: Adam step size.
       min_log_std: lower bound of every log-std (likelihoods and posteriors).
     """
@@ -76,6 +85,8 @@ class HVAEConfig:
     kl_weight: float = 1.0
     action_recon_weight: float = 1.0
     action_recon_std: float = 0.1
+    code_contrast_weight: float = 0.0
+    code_contrast_temperature: float = 1.0
     learning_rate: float = 1e-3
     min_log_std: float = -5.0
 
@@ -111,8 +122,10 @@ class HVAEMetrics:
 
     ``elbo = -(recon + pred + kl_z) - kl_c`` (kl_c already divided by the set size): eq. 2's
     ELBO, without the action-reconstruction term ``act`` (the negative log-likelihood of the
-    sub-action under its decoder, not part of eq. 2; logged on its own). ``loss`` is the
-    minimised objective (with ``kl_weight`` and ``action_recon_weight * act``).
+    sub-action under its decoder, not part of eq. 2; logged on its own) and without the code
+    contrast ``contrast`` (InfoNCE cross-entropy in nats, ``code_contrast``; logged whatever its
+    weight). ``loss`` is the minimised objective (with ``kl_weight``,
+    ``action_recon_weight * act`` and ``code_contrast_weight * contrast``).
     """
 
     loss: jax.Array
@@ -122,6 +135,7 @@ class HVAEMetrics:
     act: jax.Array
     kl_z: jax.Array
     kl_c: jax.Array
+    contrast: jax.Array
 
 
 def gaussian_nll(x: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
@@ -262,10 +276,13 @@ class HVAE(nn.Module):
 
         ``c`` is sampled from q_phi(c | elements where ``context_mask``); the per-element
         terms are returned for every element (``hvae_loss`` keeps those in ``target_mask``).
-        Returns ``recon, pred, act, kl_z`` (``[m]``) and ``kl_c`` (``[]``), all in nats.
+        Returns ``recon, pred, act, kl_z`` (``[m]``) and ``kl_c`` (``[]``), all in nats, and the
+        posterior means of c from the context and from the target elements (``c_context``,
+        ``c_target``, ``[c_dim]``; for ``code_contrast``).
         """
         key_c, key_z = jax.random.split(key)
         mean_c, log_std_c = self.encode_space(obs, context_mask, prev_obs, actions, dim_mask)
+        c_target = self.encode_space(obs, target_mask, prev_obs, actions, dim_mask)[0]
         c = mean_c + jnp.exp(log_std_c) * jax.random.normal(key_c, mean_c.shape)
         kl_c = gaussian_kl(mean_c, log_std_c, jnp.zeros_like(mean_c), jnp.zeros_like(log_std_c))
 
@@ -284,7 +301,15 @@ class HVAE(nn.Module):
         act = jnp.sum(
             jnp.where(dim_mask, gaussian_nll(actions, self.decode_action(z, c_m), act_ls), 0.0), -1
         )
-        return {"recon": recon, "pred": pred, "act": act, "kl_z": kl_z, "kl_c": kl_c}
+        return {
+            "recon": recon,
+            "pred": pred,
+            "act": act,
+            "kl_z": kl_z,
+            "kl_c": kl_c,
+            "c_context": mean_c,
+            "c_target": c_target,
+        }
 
 
 def _cat(z: jax.Array, c: jax.Array) -> jax.Array:
@@ -312,6 +337,21 @@ def split_context_target(sets: ObservationSets, key: jax.Array) -> tuple[jax.Arr
     return jax.vmap(one)(sets.group, sets.set_mask, jax.random.split(key, S))
 
 
+def code_contrast(c_context: jax.Array, c_target: jax.Array, temperature: float) -> jax.Array:
+    """Symmetric InfoNCE over S sets: ``c_context, c_target [S, c_dim] -> []`` nats.
+
+    With logits ``l_ij = -||c_context_i - c_target_j||^2 / temperature``, the mean of the
+    cross-entropies of matching row i to column i and column j to row j: 0 when every set's
+    halves are far closer to each other than to any other set's, ``log S`` when all codes
+    coincide (0 for S = 1: nothing to separate).
+    """
+    d2 = jnp.sum(jnp.square(c_context[:, None, :] - c_target[None, :, :]), -1)
+    logits = -d2 / temperature
+    rows = -jnp.diagonal(jax.nn.log_softmax(logits, axis=1))
+    cols = -jnp.diagonal(jax.nn.log_softmax(logits, axis=0))
+    return 0.5 * (jnp.mean(rows) + jnp.mean(cols))
+
+
 def _element_args(sets: ObservationSets) -> tuple:
     return (sets.obs, sets.prev_obs, sets.actions, sets.dim_mask, sets.future, sets.future_mask)
 
@@ -333,13 +373,17 @@ def hvae_loss(
     Per set, with c ~ q_phi(c | context half) and the targets T (``split_context_target``):
     ``[sum_{o in T} (recon + pred + w_a act + beta kl_z) + beta kl_c] / |T|`` -- eq. 2 with
     its per-set KL(q_phi || p(c)) counted once per set, divided by the set size so the scale
-    does not depend on m. One reparameterised sample of c per set and of z per element.
+    does not depend on m. One reparameterised sample of c per set and of z per element. Plus
+    ``code_contrast_weight`` times ``code_contrast`` of the halves' codes (once per batch).
     """
     cfg = model.config
     key_split, key_sample = jax.random.split(key)
     context, target = split_context_target(sets, key_split)
     terms = jax.vmap(lambda *a: model.apply({"params": params}, *a))(
         *_element_args(sets), context, target, jax.random.split(key_sample, sets.set_mask.shape[0])
+    )
+    contrast = code_contrast(
+        terms.pop("c_context"), terms.pop("c_target"), cfg.code_contrast_temperature
     )
     w = target.astype(jnp.float32)
     count = jnp.maximum(jnp.sum(w, -1), 1.0)  # [S]
@@ -353,13 +397,14 @@ def hvae_loss(
     )
     elbo_s = -(per_set["recon"] + per_set["pred"] + per_set["kl_z"] + kl_c)  # eq. 2 alone
     metrics = HVAEMetrics(
-        loss=jnp.mean(loss_s),
+        loss=jnp.mean(loss_s) + cfg.code_contrast_weight * contrast,
         elbo=jnp.mean(elbo_s),
         recon=jnp.mean(per_set["recon"]),
         pred=jnp.mean(per_set["pred"]),
         act=jnp.mean(per_set["act"]),
         kl_z=jnp.mean(per_set["kl_z"]),
         kl_c=jnp.mean(kl_c),
+        contrast=contrast,
     )
     return metrics.loss, metrics
 

@@ -50,11 +50,11 @@ UNIT_INTERVAL = frozenset(
 POSITIVE = frozenset(
     {"actor_lr", "critic_lr", "alpha_lr", "learning_rate", "init_alpha", "grad_clip"}
     | {"max_grad_norm", "action_recon_std", "gumbel_temperature", "clipping_epsilon", "tau"}
-    | {"reward_scale", "reward_scaling"}
+    | {"reward_scale", "reward_scaling", "code_contrast_temperature"}
 )
 NON_NEGATIVE = frozenset(
     {"entropy_cost", "penalty_coef", "kl_weight", "action_recon_weight", "maddpg_noise"}
-    | {"discrete_entropy_scale", "head_init_scale"}
+    | {"discrete_entropy_scale", "head_init_scale", "code_contrast_weight"}
 )
 # Options of the end-of-run report: a resumed run may change them.
 REPORT_OPTIONS = frozenset(

@@ -316,6 +316,7 @@ def pretrain(
             f"  ASRL step {step}/{cfg.asrl_steps}: ELBO (eq. 2) {float(m.elbo):.2f} "
             f"(recon {float(m.recon):.2f}, pred {float(m.pred):.2f}, KL_z {float(m.kl_z):.2f}, "
             f"KL_c {float(m.kl_c):.2f}); action recon NLL {float(m.act):.2f}; "
+            f"code contrast {float(m.contrast):.3f}; "
             f"loss {float(m.loss):.2f}"
         )
 
