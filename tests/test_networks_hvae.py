@@ -200,8 +200,8 @@ def test_code_contrast_separates_sets():
 
 
 def test_code_contrast_weight_enters_the_loss(probe):
-    """The term is logged whatever its weight and added to the loss with it; the ELBO is eq. 2's
-    alone either way."""
+    """The term is added to the loss with its weight and the ELBO is eq. 2's alone either way;
+    with weight 0 it is not computed at all (0, and the loss is the plain one)."""
     from score_jax.networks.hvae import hvae_loss, init_hvae
 
     fixed = jnp.array([False, False, True])
@@ -209,14 +209,18 @@ def test_code_contrast_weight_enters_the_loss(probe):
         probe, jax.random.PRNGKey(3), [0, 1], 4, 2, CFG.predict_steps, WIDTH, WARMUP, fixed
     )
     key = jax.random.PRNGKey(4)
-    base = HVAE(CFG, probe.observation_size, WIDTH)
-    params = init_hvae(base, jax.random.PRNGKey(5), sets)
-    _, m0 = hvae_loss(params, base, sets, key)
-    weighted = HVAE(
-        HVAEConfig(**{**CFG.__dict__, "code_contrast_weight": 2.0}), probe.observation_size, WIDTH
-    )
-    _, m2 = hvae_loss(params, weighted, sets, key)
-    assert 0.0 < float(m0.contrast) <= np.log(2.0) + 1e-6
-    assert float(m2.contrast) == pytest.approx(float(m0.contrast), rel=1e-6)
-    assert float(m2.elbo) == pytest.approx(float(m0.elbo), rel=1e-6)
-    assert float(m2.loss) == pytest.approx(float(m0.loss) + 2.0 * float(m0.contrast), rel=1e-5)
+
+    def model(weight):
+        cfg = HVAEConfig(**{**CFG.__dict__, "code_contrast_weight": weight})
+        return HVAE(cfg, probe.observation_size, WIDTH)
+
+    params = init_hvae(model(0.0), jax.random.PRNGKey(5), sets)
+    _, m0 = hvae_loss(params, model(0.0), sets, key)
+    _, m1 = hvae_loss(params, model(1.0), sets, key)
+    _, m2 = hvae_loss(params, model(2.0), sets, key)
+    assert 0.0 < float(m1.contrast) <= np.log(2.0) + 1e-6
+    assert float(m2.contrast) == pytest.approx(float(m1.contrast), rel=1e-6)
+    assert float(m2.elbo) == pytest.approx(float(m1.elbo), rel=1e-6)
+    assert float(m2.loss) == pytest.approx(float(m1.loss) + float(m1.contrast), rel=1e-5)
+    assert float(m0.contrast) == 0.0 and float(m0.elbo) == pytest.approx(float(m1.elbo), rel=1e-6)
+    assert float(m1.loss) == pytest.approx(float(m0.loss) + float(m1.contrast), rel=1e-5)

@@ -32,8 +32,9 @@ Choices the paper leaves open (documented here once):
   (on the targets); it stops c from memorising the set's own samples (the j elements of a
   fixing share a start state), so c describes the sub-space, not the sample. Embeddings
   (``space_embeddings``) use the whole set.
-* ``code_contrast_weight`` (default 0 = eq. 2's terms only) adds an InfoNCE term over the S
-  sets of a batch: the code of a set's context half must pick out the same set's target half
+* ``code_contrast_weight`` (default 0 = eq. 2's terms only, and nothing of the term is
+  computed, so the default program is the one the study log measured) adds an InfoNCE term over
+  the S sets of a batch: the code of a set's context half must pick out the same set's target half
   among all S target halves by distance (``code_contrast``). Eq. 2 rewards c only as far as
   the decoders need it; sub-spaces of equal width whose effects differ little at first (the
   greenhouse's temperature and CO2 hours) then get codes close together, and a critic that
@@ -123,8 +124,8 @@ class HVAEMetrics:
     ``elbo = -(recon + pred + kl_z) - kl_c`` (kl_c already divided by the set size): eq. 2's
     ELBO, without the action-reconstruction term ``act`` (the negative log-likelihood of the
     sub-action under its decoder, not part of eq. 2; logged on its own) and without the code
-    contrast ``contrast`` (InfoNCE cross-entropy in nats, ``code_contrast``; logged whatever its
-    weight). ``loss`` is the minimised objective (with ``kl_weight``,
+    contrast ``contrast`` (InfoNCE cross-entropy in nats, ``code_contrast``; 0 when its weight
+    is 0, as it is then not computed). ``loss`` is the minimised objective (with ``kl_weight``,
     ``action_recon_weight * act`` and ``code_contrast_weight * contrast``).
     """
 
@@ -276,13 +277,12 @@ class HVAE(nn.Module):
 
         ``c`` is sampled from q_phi(c | elements where ``context_mask``); the per-element
         terms are returned for every element (``hvae_loss`` keeps those in ``target_mask``).
-        Returns ``recon, pred, act, kl_z`` (``[m]``) and ``kl_c`` (``[]``), all in nats, and the
-        posterior means of c from the context and from the target elements (``c_context``,
-        ``c_target``, ``[c_dim]``; for ``code_contrast``).
+        Returns ``recon, pred, act, kl_z`` (``[m]``) and ``kl_c`` (``[]``), all in nats, and,
+        when ``code_contrast_weight > 0``, the posterior means of c from the context and from
+        the target elements (``c_context``, ``c_target``, ``[c_dim]``; for ``code_contrast``).
         """
         key_c, key_z = jax.random.split(key)
         mean_c, log_std_c = self.encode_space(obs, context_mask, prev_obs, actions, dim_mask)
-        c_target = self.encode_space(obs, target_mask, prev_obs, actions, dim_mask)[0]
         c = mean_c + jnp.exp(log_std_c) * jax.random.normal(key_c, mean_c.shape)
         kl_c = gaussian_kl(mean_c, log_std_c, jnp.zeros_like(mean_c), jnp.zeros_like(log_std_c))
 
@@ -301,15 +301,11 @@ class HVAE(nn.Module):
         act = jnp.sum(
             jnp.where(dim_mask, gaussian_nll(actions, self.decode_action(z, c_m), act_ls), 0.0), -1
         )
-        return {
-            "recon": recon,
-            "pred": pred,
-            "act": act,
-            "kl_z": kl_z,
-            "kl_c": kl_c,
-            "c_context": mean_c,
-            "c_target": c_target,
-        }
+        terms = {"recon": recon, "pred": pred, "act": act, "kl_z": kl_z, "kl_c": kl_c}
+        if self.config.code_contrast_weight > 0:  # static: off adds nothing to the program
+            terms["c_context"] = mean_c
+            terms["c_target"] = self.encode_space(obs, target_mask, prev_obs, actions, dim_mask)[0]
+        return terms
 
 
 def _cat(z: jax.Array, c: jax.Array) -> jax.Array:
@@ -382,9 +378,11 @@ def hvae_loss(
     terms = jax.vmap(lambda *a: model.apply({"params": params}, *a))(
         *_element_args(sets), context, target, jax.random.split(key_sample, sets.set_mask.shape[0])
     )
-    contrast = code_contrast(
-        terms.pop("c_context"), terms.pop("c_target"), cfg.code_contrast_temperature
-    )
+    contrast = jnp.zeros(())
+    if cfg.code_contrast_weight > 0:
+        contrast = code_contrast(
+            terms.pop("c_context"), terms.pop("c_target"), cfg.code_contrast_temperature
+        )
     w = target.astype(jnp.float32)
     count = jnp.maximum(jnp.sum(w, -1), 1.0)  # [S]
     per_set = {k: jnp.sum(v * w, -1) / count for k, v in terms.items() if k != "kl_c"}
@@ -396,8 +394,11 @@ def hvae_loss(
         + cfg.kl_weight * (per_set["kl_z"] + kl_c)
     )
     elbo_s = -(per_set["recon"] + per_set["pred"] + per_set["kl_z"] + kl_c)  # eq. 2 alone
+    loss = jnp.mean(loss_s)
+    if cfg.code_contrast_weight > 0:
+        loss = loss + cfg.code_contrast_weight * contrast
     metrics = HVAEMetrics(
-        loss=jnp.mean(loss_s) + cfg.code_contrast_weight * contrast,
+        loss=loss,
         elbo=jnp.mean(elbo_s),
         recon=jnp.mean(per_set["recon"]),
         pred=jnp.mean(per_set["pred"]),

@@ -311,13 +311,15 @@ def pretrain(
     if not cfg.critic.asrl:
         return FrozenInputs(None, None)
 
+    contrast = cfg.hvae.code_contrast_weight > 0
+
     def progress(step, m):
         log(
             f"  ASRL step {step}/{cfg.asrl_steps}: ELBO (eq. 2) {float(m.elbo):.2f} "
             f"(recon {float(m.recon):.2f}, pred {float(m.pred):.2f}, KL_z {float(m.kl_z):.2f}, "
             f"KL_c {float(m.kl_c):.2f}); action recon NLL {float(m.act):.2f}; "
-            f"code contrast {float(m.contrast):.3f}; "
-            f"loss {float(m.loss):.2f}"
+            + (f"code contrast {float(m.contrast):.3f}; " if contrast else "")
+            + f"loss {float(m.loss):.2f}"
         )
 
     result = train_hvae(
