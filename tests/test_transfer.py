@@ -128,18 +128,22 @@ def test_frozen_parts_are_bitwise_unchanged_after_a_finetuning_step(subset_run, 
     )  # p_w, GAT, f_xi train
 
 
-def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path):
+def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path, caplog):
     out = tmp_path / "grown"
-    result = run_transfer(
-        TransferArgs(
-            checkpoint=subset_run.run_dir,
-            total_steps=400,
-            run_dir=str(out),
-            quiet=True,
-            eval_episodes=4,
-        ),
-        log=lambda *a: None,
-    )
+    with jax.log_compiles(True), caplog.at_level("WARNING"):
+        result = run_transfer(
+            TransferArgs(
+                checkpoint=subset_run.run_dir,
+                total_steps=400,
+                run_dir=str(out),
+                quiet=True,
+                eval_episodes=4,
+            ),
+            log=lambda *a: None,
+        )
+    # the grown state is placed like a fresh one: the training epoch compiles once, not again
+    # after its first call (which it did while the grown agent was not committed to a device)
+    assert sum("Compiling jit(_epoch)" in r.getMessage() for r in caplog.records) == 1
     assert result["new_subspaces"] == ["c"]
     assert np.isfinite(result["initial"]["mean"]) and np.isfinite(result["converge"]["mean"])
     saved = json.load(open(out / "transfer.json"))
