@@ -85,6 +85,19 @@ def shard_settings(settings: SweepSettings, devices=None) -> SweepSettings:
     )
 
 
+def on_devices_of(settings: SweepSettings, tree):
+    """``tree`` with every array held on fewer devices than the (sharded) settings replicated
+    over the settings' mesh: a run restored onto one device (a checkpoint, brax's agents) is
+    swept with settings spread over every device. Unchanged when the settings are not spread."""
+    sharding = settings.n_failed.sharding
+    if not isinstance(sharding, jax.sharding.NamedSharding) or len(sharding.device_set) < 2:
+        return tree
+    replicated = jax.sharding.NamedSharding(sharding.mesh, jax.sharding.PartitionSpec())
+    n = len(sharding.device_set)
+    spread = lambda x: len(getattr(x, "sharding", replicated).device_set) == n
+    return jax.tree.map(lambda x: x if spread(x) else jax.device_put(x, replicated), tree)
+
+
 @dataclasses.dataclass
 class SweepTable:
     """Statistics per (n_failed, mode) over seeds (and episodes)."""
@@ -205,9 +218,10 @@ def run_sweep(run, n_seeds: int = 10, log=print) -> SweepTable:
         settings, key
     )
     sweep = jax.jit(jax.vmap(one, in_axes=(0, None, 0)) if run.batched else one)
+    agent = on_devices_of(settings, run.state.agent)
     t0 = time.time()
     returns = distributed.to_host(
-        jax.block_until_ready(sweep(run.state.agent, settings, run.eval_keys(30_000)))
+        jax.block_until_ready(sweep(agent, settings, run.eval_keys(30_000)))
     )
     seconds = time.time() - t0
     table = tabulate(returns, settings, n, n_seeds)
