@@ -64,7 +64,9 @@ from score_jax.evaluation.stats import (  # noqa: E402
 from score_jax.evaluation.transfer import TransferArgs, run_transfer  # noqa: E402
 from score_jax.run.build import build  # noqa: E402
 from score_jax.run.config import TrainConfig, to_dict  # noqa: E402
+from score_jax.run.cpu_split import split_cpu_for_seeds  # noqa: E402
 from score_jax.run.driver import train  # noqa: E402
+from score_jax.run.side_by_side import run_side_by_side  # noqa: E402
 
 # Environment steps per run (simulated days on the greenhouse), whatever the action repeat: a
 # greenhouse decision held 8 days costs 8 of them, so every row sees the same simulated time.
@@ -134,6 +136,9 @@ class CompareArgs:
     """Where the runs go."""
     base: TrainConfig = TrainConfig(robustness_seeds=0, quiet=True)
     """Settings shared by every run (e.g. --base.score.asrl-steps 500)."""
+    jobs: int = 1
+    """Rows trained side by side, each in its own process (2 on a 2-core CPU: one row compiles
+    while another trains); 1 = one after another in this process."""
 
 
 def rows(args: CompareArgs) -> list[tuple[str, str, dict]]:
@@ -348,16 +353,48 @@ def row_config(args: CompareArgs, env: str, algo: str, **overrides) -> TrainConf
     )
 
 
-def compare_env(args: CompareArgs, env: str) -> dict:
-    steps, env_steps = decisions(args, env)
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """One row's training: ``kind`` "full" trains ``cfg``; "transfer" trains the subset run
+    ``cfg``, then fine-tunes it for ``steps`` decisions into ``target``."""
+
+    label: str
+    kind: Literal["full", "transfer"]
+    cfg: TrainConfig
+    target: str | None = None
+    steps: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"{self.label} {self.kind}"
+
+
+def run_job(job: Job, n_episodes: int) -> dict:
+    """``run_full`` or ``run_transfer_pair`` of ``job`` (its result.json reused when present)."""
+    if job.kind == "full":
+        return run_full(job.cfg, n_episodes)
+    return run_transfer_pair(job.cfg, job.target, job.steps, n_episodes)
+
+
+def cost_order(jobs: list[Job]) -> list[Job]:
+    """The jobs, the likely longest first (SCORE's family before the baselines, a transfer pair
+    before a single run), so that side by side the last to finish is a short one."""
+    score_family = lambda j: j.cfg.algo == "score"
+    return sorted(jobs, key=lambda j: (not score_family(j), j.kind != "transfer"))
+
+
+def env_jobs(args: CompareArgs, env: str) -> list[Job]:
+    """Every row's jobs on ``env``: its full-space run and, with ``--transfer``, one subset run
+    + fine-tuning per transfer variant."""
+    steps, _ = decisions(args, env)
     subset = args.transfer_subspaces or SUBSETS[env]
-    jobs = []  # (label, kind, cfg, transfer target dir) with kind "full" or "transfer"
+    jobs = []
     seeds_dir = _seeds_dir(args.seeds)
     for label, algo, overrides in rows(args):
         cfg = row_config(args, env, algo, **overrides)
         slug = label.replace("+", "_").lower()
         run_dir = os.path.join(args.work_dir, env, slug, seeds_dir)
-        jobs.append((label, "full", dataclasses.replace(cfg, run_dir=run_dir), None))
+        jobs.append(Job(label, "full", dataclasses.replace(cfg, run_dir=run_dir)))
         if not args.transfer or not can_transfer(cfg):
             continue
         for variant in _transfer_variants(args, algo):
@@ -372,9 +409,38 @@ def compare_env(args: CompareArgs, env: str) -> dict:
                 run_dir=os.path.join(args.work_dir, env, f"{slug}-{variant}-subset", seeds_dir),
             )
             target = os.path.join(args.work_dir, env, f"{slug}-{variant}-transfer", seeds_dir)
-            jobs.append((name, "transfer", vcfg, target))
+            jobs.append(Job(name, "transfer", vcfg, target, steps))
+    return jobs
+
+
+def run_jobs_side_by_side(jobs: list[Job], n_episodes: int, workers: int, log=print) -> None:
+    """Train ``jobs`` (longest first) in ``workers`` processes at once, filling their
+    result.json; one that fails there is tried again (and reported) by whoever reads it."""
+    pending = [j for j in cost_order(jobs) if not is_done(j, n_episodes)]
+    if workers > 1 and len(pending) > 1:
+        log(f"training {len(pending)} runs, {workers} side by side:")
+        tasks = [(j.name, run_job, (j, n_episodes)) for j in pending]
+        run_side_by_side(tasks, workers, log=log)
+
+
+def is_done(job: Job, n_episodes: int) -> bool:
+    """Whether ``job``'s result.json exists with its settings (reading it trains nothing)."""
+    if job.kind == "full":
+        path, key = os.path.join(job.cfg.run_dir, "result.json"), _key(job.cfg, episodes=n_episodes)
+    else:
+        path = os.path.join(job.target, "result.json")
+        key = _key(job.cfg, episodes=n_episodes, steps=job.steps)
+    return _cached(path, key) is not None
+
+
+def compare_env(args: CompareArgs, env: str) -> dict:
+    steps, env_steps = decisions(args, env)
+    subset = args.transfer_subspaces or SUBSETS[env]
+    jobs = env_jobs(args, env)
+    run_jobs_side_by_side(jobs, args.eval_episodes, args.jobs, log=lambda m: print(m, flush=True))
     results, errors, t0 = {}, {}, time.time()
-    for i, (label, kind, cfg, target) in enumerate(jobs):
+    for i, job in enumerate(jobs):
+        label, kind, cfg = job.label, job.kind, job.cfg
         t = time.time()
         print(
             f"[{env} {i + 1}/{len(jobs)}] {label} {kind}, {args.seeds} seeds ...",
@@ -382,16 +448,12 @@ def compare_env(args: CompareArgs, env: str) -> dict:
             flush=True,
         )
         try:
-            res = (
-                run_full(cfg, args.eval_episodes)
-                if kind == "full"
-                else run_transfer_pair(cfg, target, steps, args.eval_episodes)
-            )
+            res = run_job(job, args.eval_episodes)
         except Exception as e:  # one failing algorithm must not stop the comparison; it is reported
             errors.setdefault(f"{label} ({kind})", f"{type(e).__name__}: {e}")
             print(f"FAILED ({type(e).__name__}: {str(e)[:200]})", flush=True)
             continue
-        results[(label, kind)] = {**res, "run_dir": target or cfg.run_dir}
+        results[(label, kind)] = {**res, "run_dir": job.target or cfg.run_dir}
         shown = np.mean(res["returns"] if kind == "full" else res["converge"])
         print(
             f"mean {shown:.2f} ({time.time() - t:.0f} s, {time.time() - t0:.0f} s in all)",
@@ -538,4 +600,7 @@ def main(args: CompareArgs) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(tyro.cli(CompareArgs)))
+    cli_args = tyro.cli(CompareArgs)
+    # before JAX starts: one XLA host device per core, so a row's seeds train side by side
+    split_cpu_for_seeds(cli_args.seeds, cli_args.base.cpu_devices)
+    sys.exit(main(cli_args))

@@ -58,7 +58,9 @@ from score_jax.evaluation.robustness import run_sweep  # noqa: E402
 from score_jax.run.build import restore_run  # noqa: E402
 from score_jax.run.compile_cache import enable_compile_cache  # noqa: E402
 from score_jax.run.config import TrainConfig  # noqa: E402
+from score_jax.run.cpu_split import split_cpu_for_seeds  # noqa: E402
 from score_jax.run.provenance import git_info  # noqa: E402
+from score_jax.run.side_by_side import run_side_by_side  # noqa: E402
 
 FIGURES = {  # (learning, transfer, robustness) figure numbers of the paper per environment
     "spider": ("6a", "6b", "7"),
@@ -114,6 +116,9 @@ class PaperArgs:
     """Where the runs go (reused when settings match)."""
     base: TrainConfig = TrainConfig(robustness_seeds=0, quiet=True)
     """Settings shared by every run (e.g. --base.score.asrl-steps 500)."""
+    jobs: int = 0
+    """Runs and sweeps side by side, each in its own process; 0 = 2 with --quick (a small run
+    is mostly compilation, on one core), else 1 (a row's seeds already use every core)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,6 +134,7 @@ class Plan:
     eval_points: int
     eval_episodes: int
     robustness_seeds: int
+    jobs: int
 
 
 def plan(args: PaperArgs) -> Plan:
@@ -143,6 +149,7 @@ def plan(args: PaperArgs) -> Plan:
         eval_points=args.eval_points or (2 if q else 8),
         eval_episodes=args.eval_episodes or (2 if q else 10),
         robustness_seeds=args.robustness_seeds or (2 if q else 10),
+        jobs=args.jobs or (2 if q else 1),
     )
 
 
@@ -178,6 +185,7 @@ def compare_args(args: PaperArgs, p: Plan, env: str, prior: str) -> compare.Comp
         out=os.path.join(args.work_dir, f"prior-{prior}", "tables"),
         work_dir=os.path.join(args.work_dir, f"prior-{prior}"),
         base=base,
+        jobs=p.jobs,
     )
 
 
@@ -187,11 +195,16 @@ def _score_run(cargs: compare.CompareArgs, env: str, name: str, **overrides) -> 
     return compare.row_config(cargs, env, "score", run_dir=run_dir, **overrides)
 
 
-def eq2_row(cargs: compare.CompareArgs, env: str) -> tuple[str, dict]:
+def eq2_config(cargs: compare.CompareArgs, env: str) -> TrainConfig:
     """Table 2's row with the HVAE trained on eq. 2 alone (action-reconstruction weight 0)."""
     score = cargs.base.score
     hvae = dataclasses.replace(score.hvae, action_recon_weight=0.0)
-    cfg = _score_run(cargs, env, "asrl_eq2", score=dataclasses.replace(score, hvae=hvae))
+    return _score_run(cargs, env, "asrl_eq2", score=dataclasses.replace(score, hvae=hvae))
+
+
+def eq2_row(cargs: compare.CompareArgs, env: str) -> tuple[str, dict]:
+    """Table 2's eq. 2 row (``eq2_config``), trained or read back."""
+    cfg = eq2_config(cargs, env)
     res = compare.run_full(cfg, cargs.eval_episodes)
     return EQ2_LABEL, {
         "full": {
@@ -202,24 +215,51 @@ def eq2_row(cargs: compare.CompareArgs, env: str) -> tuple[str, dict]:
     }
 
 
-def profit_run(cargs: compare.CompareArgs, env: str) -> str:
+def profit_config(cargs: compare.CompareArgs, env: str) -> TrainConfig:
     """A SCORE run on the greenhouse with the profit reward (Fig. 10), same budget and seeds."""
     options = tuple(o for o in cargs.base.env_options if not o.startswith("reward="))
-    cfg = _score_run(cargs, env, "score_profit", env_options=(*options, "reward='profit'"))
+    return _score_run(cargs, env, "score_profit", env_options=(*options, "reward='profit'"))
+
+
+def profit_run(cargs: compare.CompareArgs, env: str) -> str:
+    """``profit_config``'s run, trained or read back; its run directory."""
+    cfg = profit_config(cargs, env)
     compare.run_full(cfg, cargs.eval_episodes)
     return cfg.run_dir
 
 
-def robustness_of(run_dir: str, n_seeds: int, log) -> dict:
-    """The run's robustness sweep (``robustness.json``), run once and then read back."""
+def _saved_sweep(run_dir: str, n_seeds: int) -> dict | None:
     path = os.path.join(run_dir, "robustness.json")
     if os.path.exists(path):
         saved = json.load(open(path))
         if saved.get("n_seeds") == n_seeds:
             return saved
+    return None
+
+
+def robustness_of(run_dir: str, n_seeds: int, log=lambda *a: None) -> dict:
+    """The run's robustness sweep (``robustness.json``), run once and then read back."""
+    saved = _saved_sweep(run_dir, n_seeds)
+    if saved is not None:
+        return saved
     run_sweep(restore_run(run_dir, log=lambda *a: None), n_seeds, log=lambda *a: None)
     log(f"  robustness sweep of {run_dir}")
-    return json.load(open(path))
+    return json.load(open(os.path.join(run_dir, "robustness.json")))
+
+
+def env_jobs(args: PaperArgs, p: Plan, env: str) -> list[compare.Job]:
+    """Every run of ``env`` (each prior's comparison, the eq. 2 row, the profit run), the
+    likely longest first."""
+    jobs = []
+    for prior in p.priors:
+        cargs = compare_args(args, p, env, prior)
+        jobs += compare.env_jobs(cargs, env)
+        if "score" in (p.algos or ("score",)):
+            if p.eq2_row:
+                jobs.append(compare.Job(EQ2_LABEL, "full", eq2_config(cargs, env)))
+            if env == "greenhouse" and prior == p.priors[0]:
+                jobs.append(compare.Job("SCORE (profit)", "full", profit_config(cargs, env)))
+    return compare.cost_order(jobs)
 
 
 def _full_rows(rows: dict) -> dict:
@@ -269,6 +309,8 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
     """Every run, sweep and figure of one environment; the data results.md is written from."""
     learn_fig, transfer_fig, robust_fig = FIGURES[env]
     out = {"env": env, "env_steps": budget(args, env), "priors": {}, "figures": {}, "notes": []}
+    compare.run_jobs_side_by_side(env_jobs(args, p, env), p.eval_episodes, p.jobs, log)
+    compared = {}
     for prior in p.priors:
         cargs = compare_args(args, p, env, prior)
         log(f"[{env}, prior {prior}] comparison: {len(compare.rows(cargs))} rows x {p.seeds} seeds")
@@ -277,6 +319,16 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         if p.eq2_row and "score" in (p.algos or ("score",)):
             label, row = eq2_row(cargs, env)
             rows[label] = row
+        compared[prior] = (cmp, rows)
+    n = p.robustness_seeds
+    dirs = [
+        r["full"]["run_dir"] for _, rows in compared.values() for r in _full_rows(rows).values()
+    ]
+    sweeps = [(f"sweep of {d}", robustness_of, (d, n)) for d in dirs if _saved_sweep(d, n) is None]
+    if p.jobs > 1 and len(sweeps) > 1:
+        log(f"{len(sweeps)} robustness sweeps, {p.jobs} side by side:")
+        run_side_by_side(sweeps, p.jobs, log=log)
+    for prior, (cmp, rows) in compared.items():
         robust = {}
         for label, row in _full_rows(rows).items():
             try:
@@ -470,4 +522,7 @@ def main(args: PaperArgs) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(tyro.cli(PaperArgs)))
+    cli_args = tyro.cli(PaperArgs)
+    # before JAX starts: one XLA host device per core, so a row's seeds train side by side
+    split_cpu_for_seeds(plan(cli_args).seeds, cli_args.base.cpu_devices)
+    sys.exit(main(cli_args))
