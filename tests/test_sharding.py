@@ -1,6 +1,6 @@
 """With two forced host devices (in a subprocess): the data-parallel epoch equals the
-single-device one, and so do the robustness sweep with its settings sharded and SCORE's ASRL
-with its seeds sharded."""
+single-device one, and so does the robustness sweep with its settings sharded (also for an
+agent committed to one device)."""
 
 import os
 import subprocess
@@ -52,15 +52,6 @@ np.testing.assert_allclose(
     rtol=1e-5,
     atol=1e-5,
 )
-# SCORE's ASRL with its seeds over both devices (whole seeds per device, as build() places
-# them) equals the one-device program
-from score_jax.run.build import seed_keys, seeds_over_devices
-keys = seed_keys((3, 4))[0]
-one = run.algo.pretrain(keys)
-two = run.algo.pretrain(seeds_over_devices(keys, make_data_mesh()))
-assert len(two.c.sharding.device_set) == 2 and one.c.shape[0] == 2
-for x, y in zip(jax.tree.leaves(jax.device_get(one)), jax.tree.leaves(jax.device_get(two))):
-    np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
 print("SHARDED_OK", int(a.updates))
 """
 

@@ -9,7 +9,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import envs
 from envs.base import CompositeEnv
@@ -185,13 +184,10 @@ def build(
         log=log,
     )
     algo = registry.builder(cfg.algo)(cfg.algorithm_settings(), ctx)
-    mesh = make_data_mesh() if cfg.data_parallel and jax.device_count() > 1 else None
-    # Seeds over the devices when they divide evenly (whole runs per device), else each
-    # seed's environments and batches (see SeedTrainer).
-    by_seed = mesh is not None and cfg.num_seeds % mesh.size == 0
     frozen = None
     if not restoring and algo.pretrain is not None:
-        frozen = algo.pretrain(seeds_over_devices(keys_build, mesh if by_seed else None))
+        frozen = algo.pretrain(keys_build)
+    mesh = make_data_mesh() if cfg.data_parallel and jax.device_count() > 1 else None
     if algo.train_external is not None:  # brax SAC / PPO, H-PPO: their own loop (run.external)
         trainer = ExternalTrainer(algo.off_policy)
     else:
@@ -200,18 +196,12 @@ def build(
             exploration_hold=spec.exploration_hold,
             updates_per_step=spec.updates_per_step,
         )
+        # Seeds over the devices when they divide evenly (whole runs per device), else each
+        # seed's environments and batches (see SeedTrainer).
+        by_seed = mesh is not None and cfg.num_seeds % mesh.size == 0
         single = Trainer(env, algo.off_policy, schedule, agent_index, None if by_seed else mesh)
         trainer = SeedTrainer(single, cfg.num_seeds, mesh if by_seed else None)
     return Run(cfg, spec, env, algo, trainer, agent_index, seeds, transfer=transfer, frozen=frozen)
-
-
-def seeds_over_devices(keys: jax.Array, mesh: Mesh | None) -> jax.Array:
-    """``keys [K, 2]`` split over ``mesh``'s devices along K (whole seeds per device), so that a
-    pretraining vmapped over seeds (SCORE's ASRL) runs its seeds side by side like the training
-    that follows; unchanged without a mesh or with several processes (each holds its own)."""
-    if mesh is None or jax.process_count() > 1:
-        return keys
-    return jax.device_put(keys, NamedSharding(mesh, PartitionSpec("data")))
 
 
 def saved_transfer(meta: dict) -> TransferSpec | None:
