@@ -22,6 +22,7 @@ import os
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from score_jax.run import distributed
@@ -123,7 +124,13 @@ def train(
 
     state = run.trainer.init(keys_train, run.frozen)
     if initial_agent is not None and not cfg.resume:
-        state = run.trainer.place(state.replace(agent=initial_agent(run, state.agent)))
+        grown = initial_agent(run, state.agent)
+        if run.trainer.shards == "nothing":
+            # uncommitted like a fresh state's leaves: the grown agent mixes leaves restored
+            # from the source's checkpoint (committed to a device) with fresh ones, and an
+            # epoch called with that mix compiles again once its own outputs come back
+            grown = jax.tree.map(lambda x: jnp.asarray(jax.device_get(x)), grown)
+        state = run.trainer.place(state.replace(agent=grown))
     if cfg.resume:  # the newest usable checkpoint (skipped ones: one warning line)
         check = checks_for(to_dict(cfg), run.env.space)
         state, _ = ckpt.restore_usable(state, check, log=log, set_aside=True)

@@ -326,10 +326,7 @@ class SeedTrainer:
             sharding = NamedSharding(self.mesh, P("data"))
             return jax.tree.map(lambda x: place(x, sharding), state)
         if self.single.mesh is None:
-            # committed to the one device, whatever made the state (a jit, a checkpoint restore,
-            # or eager ops mixing both, as a transfer's grown agent): the epoch then compiles
-            # once, not again when its inputs' placement changes after the first call
-            return jax.device_put(state, jax.local_devices()[0])
+            return state
         data = NamedSharding(self.single.mesh, P(None, "data"))
         replicated = NamedSharding(self.single.mesh, P())
         put = lambda tree, sharding: jax.tree.map(lambda x: place(x, sharding), tree)
