@@ -221,6 +221,16 @@ def _key(cfg: TrainConfig, **extra) -> dict:
     return json.loads(json.dumps({"config": to_dict(cfg), **extra}, default=str))
 
 
+def _full_cache(cfg: TrainConfig, n_episodes: int, **extra) -> tuple[str, dict]:
+    """Where ``run_full`` keeps the result of ``cfg`` and the key it must match."""
+    return os.path.join(cfg.run_dir, "result.json"), _key(cfg, episodes=n_episodes, **extra)
+
+
+def _transfer_cache(cfg: TrainConfig, target: str, steps: int, n_episodes: int):
+    """Where ``run_transfer_pair`` keeps its result and the key it must match."""
+    return os.path.join(target, "result.json"), _key(cfg, episodes=n_episodes, steps=steps)
+
+
 def final_returns(run, n_episodes: int) -> list[float]:
     """Each seed's mean return of its final (last) deterministic policy over ``n_episodes``."""
     returns = np.asarray(run.evaluate(run.state.agent, n_episodes).returns)
@@ -236,8 +246,7 @@ def run_full(cfg: TrainConfig, n_episodes: int, report=None, log=None) -> dict:
     under ``"report"``; its ``__name__`` is part of the cache key. ``log``: where the run's own
     lines go (header, evaluations); default nowhere."""
     extra = {} if report is None else {"report": report.__name__}
-    path = os.path.join(cfg.run_dir, "result.json")
-    key = _key(cfg, episodes=n_episodes, **extra)
+    path, key = _full_cache(cfg, n_episodes, **extra)
     cached = _cached(path, key)
     if cached is not None:
         return cached
@@ -256,7 +265,7 @@ def run_full(cfg: TrainConfig, n_episodes: int, report=None, log=None) -> dict:
 def run_transfer_pair(cfg: TrainConfig, target: str, steps: int, n_episodes: int) -> dict:
     """Train ``cfg`` (a subset run), then fine-tune it on the full space with transfer.py into
     ``target``: the Initial and Converge returns and the fine-tuning curve."""
-    path, key = os.path.join(target, "result.json"), _key(cfg, episodes=n_episodes, steps=steps)
+    path, key = _transfer_cache(cfg, target, steps, n_episodes)
     cached = _cached(path, key)
     if cached is not None:
         return cached
@@ -426,10 +435,9 @@ def run_jobs_side_by_side(jobs: list[Job], n_episodes: int, workers: int, log=pr
 def is_done(job: Job, n_episodes: int) -> bool:
     """Whether ``job``'s result.json exists with its settings (reading it trains nothing)."""
     if job.kind == "full":
-        path, key = os.path.join(job.cfg.run_dir, "result.json"), _key(job.cfg, episodes=n_episodes)
+        path, key = _full_cache(job.cfg, n_episodes)
     else:
-        path = os.path.join(job.target, "result.json")
-        key = _key(job.cfg, episodes=n_episodes, steps=job.steps)
+        path, key = _transfer_cache(job.cfg, job.target, job.steps, n_episodes)
     return _cached(path, key) is not None
 
 

@@ -30,9 +30,9 @@ def test_jobs_run_in_other_processes_and_failures_are_reported(tmp_path):
     notes = [open(p).read().split() for p in paths]
     pids = {pid for pid, _ in notes}
     assert str(os.getpid()) not in pids and len(pids) == 2  # one fresh process per job
-    cache = jax.config.jax_compilation_cache_dir
-    if jax.config.jax_enable_compilation_cache and cache:
-        assert all(dirname == cache for _, dirname in notes)  # the parent's cache, handed on
+    cache = jax.config.jax_compilation_cache_dir  # set by conftest for every test
+    assert cache and jax.config.jax_enable_compilation_cache
+    assert all(dirname == cache for _, dirname in notes)  # the parent's cache, handed on
 
 
 def test_one_worker_runs_here_and_reports_the_same_way(tmp_path):
