@@ -73,6 +73,9 @@ FULL_BUDGET = {"greenhouse": 1_152_000, "spider": 500_000, "probe": 20_000}
 QUICK_BUDGET = {"greenhouse": 16_000, "spider": 4_000, "probe": 1_000}
 QUICK_ALGOS = ("score", "isac", "ppo")
 QUICK_ASRL_STEPS = 300  # HVAE steps per SCORE run with --quick (ASRL would dominate its runs)
+# Decisions between checkpoints with --quick: a few per run instead of about ten (each save
+# costs about as much as a hundred decisions of a quick run)
+QUICK_CHECKPOINT_EVERY = 1000
 EQ2_LABEL = "ASRL(eq.2)"
 FIGURE_DIR = "results"  # next to results.md, which links its figures as results/<file>
 
@@ -159,11 +162,17 @@ def budget(args: PaperArgs, env: str) -> int:
 
 
 def quick_base(args: PaperArgs) -> TrainConfig:
-    """``args.base``, with --quick at most ``QUICK_ASRL_STEPS`` ASRL steps per SCORE run."""
-    if not args.quick or args.base.score.asrl_steps <= QUICK_ASRL_STEPS:
-        return args.base
-    score = dataclasses.replace(args.base.score, asrl_steps=QUICK_ASRL_STEPS)
-    return dataclasses.replace(args.base, score=score)
+    """``args.base``, with --quick at most ``QUICK_ASRL_STEPS`` ASRL steps per SCORE run and a
+    checkpoint every ``QUICK_CHECKPOINT_EVERY`` decisions (unless ``--base`` sets one)."""
+    base = args.base
+    if not args.quick:
+        return base
+    if base.checkpoint_every is None:
+        base = dataclasses.replace(base, checkpoint_every=QUICK_CHECKPOINT_EVERY)
+    if base.score.asrl_steps <= QUICK_ASRL_STEPS:
+        return base
+    score = dataclasses.replace(base.score, asrl_steps=QUICK_ASRL_STEPS)
+    return dataclasses.replace(base, score=score)
 
 
 def with_prior(base: TrainConfig, on: bool) -> TrainConfig:

@@ -57,3 +57,12 @@ def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path):
     assert len(runs) == 3  # SCORE on the full space, its subset run and the transfer from it
     assert paper.main(args) == 0
     assert [p.stat().st_mtime for p in runs] == stamps
+
+
+def test_quick_base_caps_asrl_and_checkpoints_unless_base_sets_them():
+    quick = paper.quick_base(paper.PaperArgs(quick=True))
+    assert quick.score.asrl_steps == paper.QUICK_ASRL_STEPS
+    assert quick.checkpoint_every == paper.QUICK_CHECKPOINT_EVERY
+    own = paper.quick_base(paper.PaperArgs(quick=True, base=TrainConfig(checkpoint_every=7)))
+    assert own.checkpoint_every == 7
+    assert paper.quick_base(paper.PaperArgs()) == paper.PaperArgs().base

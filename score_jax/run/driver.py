@@ -61,11 +61,9 @@ def _metric_columns(run: Run) -> list[str]:
     """``BASE_COLUMNS`` then the algorithm's own metrics, by name."""
     if run.algo.train_external is not None:
         return [*BASE_COLUMNS, *[n for n in run.algo.metric_names if n not in BASE_COLUMNS]]
-    single = run.trainer.single
-    shapes = jax.eval_shape(
-        lambda key: single._epoch(single.init_state(key), run.algo.off_policy.hyper)[1],
-        jax.random.PRNGKey(0),
-    )
+    # the jitted epoch on the run's own state: jit keeps this trace, so the first epoch call
+    # compiles it without tracing the epoch again
+    shapes = jax.eval_shape(run.trainer.epoch, run.state, run.algo.off_policy.hyper)[1]
     return [*BASE_COLUMNS, *sorted(shapes.agent)]
 
 

@@ -203,6 +203,8 @@ class Trainer:
         completed = jnp.sum(ret * env_state.done), jnp.sum(env_state.done)
         env_steps = state.env_steps + cfg.num_envs
 
+        traced = {}  # do_updates' metric shapes, recorded while lax.cond traces it
+
         def do_updates(agent):
             def one(agent, k):
                 k_sample, k_update = jax.random.split(k)
@@ -212,10 +214,16 @@ class Trainer:
             agent, metrics = jax.lax.scan(
                 one, agent, jax.random.split(key_upd, self.updates_per_step)
             )
-            return agent, jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics), jnp.float32(1.0)
+            metrics = jax.tree.map(lambda m: jnp.mean(m, axis=0), metrics)
+            traced["metrics"] = jax.tree.map(
+                lambda m: jax.ShapeDtypeStruct(m.shape, m.dtype), metrics
+            )
+            return agent, metrics, jnp.float32(1.0)
 
         def skip(agent):
-            metrics = jax.eval_shape(lambda a: do_updates(a)[1], agent)
+            # lax.cond traces the true branch first, so the update (the largest part of the
+            # step) is traced once; the fallback covers a cond that traces one branch only
+            metrics = traced.get("metrics") or jax.eval_shape(lambda a: do_updates(a)[1], agent)
             return (
                 agent,
                 jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics),

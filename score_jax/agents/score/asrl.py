@@ -249,18 +249,28 @@ def train_hvae(
         env, key_data, agents, k, j, config.predict_steps, action_width, warmup_steps, fixed_default
     )
     model = HVAE(config, env.observation_size, action_width)
-    params = jax.vmap(lambda kk, s: init_hvae(model, kk, s))(key_init, sets)
     optimizer = make_optimizer(config)
-    opt_state = jax.vmap(optimizer.init)(params)
+
+    @jax.jit
+    def start(key_init, key_train, sets):
+        # one compiled program: op by op (flax's init under vmap), this start took longer
+        # than the HVAE steps of a short ASRL
+        params = jax.vmap(lambda kk, s: init_hvae(model, kk, s))(key_init, sets)
+        step_keys = jax.vmap(lambda kk: jax.random.split(kk, steps))(key_train)  # [K, steps, 2]
+        return params, jax.vmap(optimizer.init)(params), jnp.swapaxes(step_keys, 0, 1)
+
+    params, opt_state, step_keys = start(key_init, key_train, sets)
+    step_keys = np.asarray(step_keys)  # sliced on the host: no dispatch per step
     step = jax.jit(jax.vmap(hvae_train_step(model, optimizer)))
-    step_keys = jax.vmap(lambda kk: jax.random.split(kk, steps))(key_train)  # [K, steps, 2]
     losses, elbos, metrics = [], [], None
-    for i in range(steps):
-        params, opt_state, metrics = step(params, opt_state, sets, step_keys[:, i])
+    for i, keys_i in enumerate(step_keys):  # [steps, K, 2]: one host-side slice per step
+        params, opt_state, metrics = step(params, opt_state, sets, keys_i)
         losses.append(metrics.loss)
         elbos.append(metrics.elbo)
         if progress is not None and ((i + 1) % log_every == 0 or i + 1 == steps):
             progress(i + 1, jax.tree.map(lambda m: jnp.mean(m), metrics))
+    # op by op, as in the runs measured so far: compiled as one program, XLA fuses it and the
+    # codes move in their last bits (and with them every run's numbers)
     c = jax.vmap(lambda p, s: space_embeddings(model, p, s))(params, sets)
     history, elbo_history = np.asarray(jnp.stack(losses, 1)), np.asarray(jnp.stack(elbos, 1))
     result = HVAEResult(model, params, c, metrics, history, elbo_history)
