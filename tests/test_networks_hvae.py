@@ -9,6 +9,7 @@ import pytest
 import envs
 from score_jax.agents.score.asrl import collect_observation_sets, embed_new_spaces, train_hvae
 from score_jax.networks import HVAE, HVAEConfig
+from score_jax.networks.hvae import init_hvae, observation_set_shapes
 
 WIDTH = 4  # wider than the probe's max_dim (3): the transfer convention
 CFG = HVAEConfig(obs_embed_dim=16, space_embed_dim=8, latent_dim=8, hidden=32, predict_steps=2)
@@ -88,6 +89,27 @@ def test_collect_observation_sets_layout(probe):
         collect_observation_sets(probe, jax.random.PRNGKey(0), [0], 1, 1, 1, 2)
     with pytest.raises(ValueError, match="agents"):
         collect_observation_sets(probe, jax.random.PRNGKey(0), [3], 1, 1, 1, WIDTH)
+
+
+def test_observation_set_shapes_are_the_collectors(probe):
+    """``observation_set_shapes`` (what a restore builds the HVAE's template from, without
+    tracing the environment) is exactly what the collector returns, and so is the HVAE
+    initialised on it."""
+    collect = lambda key: collect_observation_sets(
+        probe, key, [0, 2], 3, 5, 2, WIDTH, warmup_steps=WARMUP
+    )
+    real = jax.eval_shape(collect, jax.random.PRNGKey(0))
+    shapes = observation_set_shapes(probe.observation_size, 2, 3, 5, 2, WIDTH)
+    assert jax.tree.structure(real) == jax.tree.structure(shapes)
+    for a, b in zip(jax.tree.leaves(real), jax.tree.leaves(shapes), strict=True):
+        assert (a.shape, a.dtype) == (b.shape, b.dtype)
+    model = HVAE(CFG, probe.observation_size, WIDTH)
+    init = lambda sets: jax.eval_shape(
+        lambda k, s: init_hvae(model, k, s), jax.random.PRNGKey(0), sets
+    )
+    assert jax.tree.map(lambda x: (x.shape, x.dtype), init(real)) == jax.tree.map(
+        lambda x: (x.shape, x.dtype), init(shapes)
+    )
 
 
 def test_elbo_falls_on_probe(trained):

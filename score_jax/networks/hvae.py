@@ -117,6 +117,27 @@ class ObservationSets:
     group: jax.Array
 
 
+def observation_set_shapes(
+    obs_size: int, n_sets: int, k: int, j: int, t: int, width: int
+) -> ObservationSets:
+    """The shapes and dtypes of the ``ObservationSets`` that ASRL collects for ``n_sets``
+    sub-spaces with ``k`` fixings of ``j`` sub-actions and ``t`` future steps (no environment
+    traced: restoring a run needs the HVAE's shapes, not its data)."""
+    m = k * j
+    f32 = lambda *shape: jax.ShapeDtypeStruct(shape, jnp.float32)
+    flag = lambda *shape: jax.ShapeDtypeStruct(shape, jnp.bool_)
+    return ObservationSets(
+        obs=f32(n_sets, m, obs_size),
+        prev_obs=f32(n_sets, m, obs_size),
+        actions=f32(n_sets, m, width),
+        dim_mask=flag(n_sets, width),
+        future=f32(n_sets, m, t, obs_size),
+        future_mask=flag(n_sets, m, t),
+        set_mask=flag(n_sets, m),
+        group=jax.ShapeDtypeStruct((n_sets, m), jnp.int32),
+    )
+
+
 @struct.dataclass
 class HVAEMetrics:
     """Per-observation terms of eq. 2 in nats (averaged over sets; all ``[]``).

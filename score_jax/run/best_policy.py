@@ -76,7 +76,7 @@ class BestPolicy:
             return better
         if self._agent is None:  # the bests saved before a resume are the other seeds' slots
             self._agent = self.ckpt.restore(agent_state)[0] if self._saved else agent_state
-        self._agent = _pick_seeds(jnp.asarray(better), agent_state, self._agent)
+        self._agent = pick_seeds(jnp.asarray(better), agent_state, self._agent)
         self.steps = [int(step) if b else s for b, s in zip(better, self.steps, strict=True)]
         self.returns = np.where(better, returns, self.returns)
         best_meta = {**meta, "best_steps": self.steps, "best_returns": self.returns.tolist()}
@@ -90,7 +90,7 @@ class BestPolicy:
 
 
 @jax.jit
-def _pick_seeds(mask: jax.Array, new: Any, old: Any) -> Any:
+def pick_seeds(mask: jax.Array, new: Any, old: Any) -> Any:
     """Seed k's slot of every leaf from ``new`` where ``mask [K]``, else from ``old``: one
     program for the whole agent (leaf by leaf, each shape compiled its own ``where``)."""
     pick = lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (jnp.ndim(a) - 1)), a, b)

@@ -15,7 +15,7 @@ from envs.base import CompositeEnv
 from envs.wrappers import with_action_repeat
 from score_jax import registry
 from score_jax.agents.base import Algorithm, BuildContext
-from score_jax.run.best_policy import has_best, restore_best
+from score_jax.run.best_policy import has_best, pick_seeds, restore_best
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, saved_run_config
 from score_jax.run.config import (
     RunSpec,
@@ -243,9 +243,7 @@ def with_best_policy(run: Run, log=print) -> Run:
         log(f"warning: the best policy of {run.run_dir} is unusable ({e}); keeping the last one")
         return run
     found = np.asarray([s is not None for s in meta["best_steps"]])
-    keep = jnp.asarray(found)
-    pick = lambda b, last: jnp.where(keep.reshape((-1,) + (1,) * (b.ndim - 1)), b, last)
-    agent = jax.tree.map(pick, best, run.state.agent)
+    agent = pick_seeds(jnp.asarray(found), best, run.state.agent)
     described = ", ".join(
         f"seed {s}: step {st}, evaluation {r:.1f}"
         for s, st, r, f in zip(

@@ -39,6 +39,7 @@ from score_jax.networks.hvae import (
     hvae_train_step,
     init_hvae,
     make_optimizer,
+    observation_set_shapes,
     space_embeddings,
 )
 
@@ -351,20 +352,17 @@ def pretrain(
 def frozen_template(env, agent_index, cfg: ScoreConfig, width: int) -> FrozenInputs:
     """Shapes of the ASRL outputs without running ASRL (filled in by a checkpoint restore).
 
-    Traced with ``jax.eval_shape`` through the real data collection and HVAE init, so it
-    always matches what ``pretrain`` produces; nothing is computed.
+    ``jax.eval_shape`` of the HVAE's init on observation sets of ``observation_set_shapes``
+    (a test checks them against the collector's): nothing is computed, and the environment is
+    not traced (on the greenhouse that trace took seconds per restore).
     """
     if not cfg.critic.asrl:
         return FrozenInputs(None, None)
     model = HVAE(cfg.hvae, env.observation_size, width)
     agents = [int(i) for i in agent_index]
-
-    def build(key):
-        sets = collect_observation_sets(
-            env, key, agents, 1, 2, cfg.hvae.predict_steps, width, warmup_steps=1
-        )
-        return init_hvae(model, key, sets)
-
-    shapes = jax.eval_shape(build, jax.random.PRNGKey(0))
+    sets = observation_set_shapes(
+        env.observation_size, len(agents), 1, 2, cfg.hvae.predict_steps, width
+    )
+    shapes = jax.eval_shape(lambda key, s: init_hvae(model, key, s), jax.random.PRNGKey(0), sets)
     params = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     return FrozenInputs(params, jnp.zeros((len(agents), cfg.hvae.space_embed_dim)))
