@@ -33,7 +33,7 @@ from score_jax.agents.replay import ReplayBuffer, Transition, replay_add, replay
 from score_jax.core.failures import fail_batch
 from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
 from score_jax.run.config import OffPolicyConfig
-from score_jax.run.distributed import place
+from score_jax.run.distributed import place_tree
 
 
 @struct.dataclass
@@ -147,18 +147,17 @@ class Trainer:
         if self.mesh is None:
             return state
         data, replicated = NamedSharding(self.mesh, P("data")), NamedSharding(self.mesh, P())
-        put = lambda tree, sharding: jax.tree.map(lambda x: place(x, sharding), tree)
         return state.replace(
-            agent=put(state.agent, replicated),
-            buffer=put(state.buffer, replicated),
-            key=put(state.key, replicated),
-            env_state=put(state.env_state, data),
-            episode_return=put(state.episode_return, data),
-            last_action=put(state.last_action, data),
-            explore_keys=put(state.explore_keys, data),
-            env_steps=put(state.env_steps, replicated),
-            updates=put(state.updates, replicated),
-            alive=put(state.alive, replicated),
+            agent=place_tree(state.agent, replicated),
+            buffer=place_tree(state.buffer, replicated),
+            key=place_tree(state.key, replicated),
+            env_state=place_tree(state.env_state, data),
+            episode_return=place_tree(state.episode_return, data),
+            last_action=place_tree(state.last_action, data),
+            explore_keys=place_tree(state.explore_keys, data),
+            env_steps=place_tree(state.env_steps, replicated),
+            updates=place_tree(state.updates, replicated),
+            alive=place_tree(state.alive, replicated),
         )
 
     def _shard_batch(self, tree):
@@ -331,17 +330,17 @@ class SeedTrainer:
 
     def place(self, state: TrainState) -> TrainState:
         if self.mesh is not None:
-            sharding = NamedSharding(self.mesh, P("data"))
-            return jax.tree.map(lambda x: place(x, sharding), state)
+            return place_tree(state, NamedSharding(self.mesh, P("data")))
         if self.single.mesh is None:
             return state
         data = NamedSharding(self.single.mesh, P(None, "data"))
         replicated = NamedSharding(self.single.mesh, P())
-        put = lambda tree, sharding: jax.tree.map(lambda x: place(x, sharding), tree)
         per_env = ("env_state", "episode_return", "last_action", "explore_keys")
         return state.replace(
             **{
-                f.name: put(getattr(state, f.name), data if f.name in per_env else replicated)
+                f.name: place_tree(
+                    getattr(state, f.name), data if f.name in per_env else replicated
+                )
                 for f in dataclasses.fields(state)
             }
         )
