@@ -6,6 +6,7 @@ target printed as met / not met.
     python benchmarks/learning.py                               # both envs, full budgets
     python benchmarks/learning.py --out benchmarks/results      # the committed results + GIF
     python benchmarks/learning.py --envs greenhouse --no-daily  # the main job's K seeds only
+    python benchmarks/learning.py --envs greenhouse --no-main   # the daily run's K seeds only
     python benchmarks/learning.py --envs greenhouse --seeds 3 --env-steps 160000
     python benchmarks/learning.py --quick                       # the pipeline, small (minutes)
     python benchmarks/learning.py --base.score.critic.no-asrl   # any train.py setting, every run
@@ -133,6 +134,10 @@ class LearningArgs:
     job's (the presets of ``--base``: 144k decisions x 8 days = 1.152 M)."""
     daily: bool = True
     """Also train with daily decisions (``action_repeat=1``) on the same simulated days."""
+    main: bool = True
+    """Train the main job's decision interval; ``--no-main --daily`` trains only the daily run
+    (both intervals' references are still evaluated; the main job's targets are then not
+    checked)."""
     daily_num_envs: int = 64
     """Environments of the daily run (64: as many vectorised steps and gradient updates as the
     8-day run with 8)."""
@@ -547,14 +552,15 @@ def greenhouse_configs(args: LearningArgs) -> dict[str, TrainConfig]:
 
 def greenhouse(args: LearningArgs) -> dict:
     configs = greenhouse_configs(args)
-    steps = Steps("greenhouse", 2 * len(configs))
+    trained = {k: v for k, v in configs.items() if args.main or k == "daily"}
+    steps = Steps("greenhouse", len(configs) + len(trained))
     refs, runs, errors = {}, {}, {}
     for label, cfg in configs.items():
         t = steps.start(f"references, {_interval_text(compare.action_repeat(cfg))}")
         refs[label] = references(cfg, args.eval_episodes, args.planned_references)
         shown = ", ".join(f"{k} {v['mean']:.1f}" for k, v in refs[label].items())
         steps.done(t, f"references ({label}): {shown}")
-    for label, cfg in configs.items():
+    for label, cfg in trained.items():
         res = _train(steps, f"SCORE, {label} decisions", cfg, errors)
         if res is not None:
             runs[label] = summarise_run(res, cfg, refs[label])
@@ -1064,6 +1070,8 @@ def print_summary(out: dict) -> None:
 
 def main(args: LearningArgs) -> int:
     """Run the selected parts; 0 when every run trained (targets met or not), 1 otherwise."""
+    if "greenhouse" in args.envs and not (args.main or args.daily):
+        raise SystemExit("error: --no-main --no-daily leaves no greenhouse run to train")
     enable_compile_cache(enabled=args.base.compile_cache)
     args = resolved(args)
     outs = []

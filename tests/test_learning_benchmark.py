@@ -175,6 +175,25 @@ def test_plans_at_full_budget(tmp_path):
     assert learning.gif_destination(args) == os.path.join(args.out, learning.GIF_NAME)
 
 
+def test_no_main_trains_only_the_daily_run(tmp_path, monkeypatch):
+    """``--no-main``: both intervals' references, only the daily run trained (nothing trained
+    here: the training and reference calls are recorded); with ``--no-daily`` too it is an
+    error before anything starts."""
+    args = dataclasses.replace(_tiny_args(tmp_path), daily=True, main=False)
+    trained, evaluated = [], []
+    ref = {"default": {"mean": 818.3, "std": 0.0}}
+    monkeypatch.setattr(
+        learning, "references", lambda cfg, *a: evaluated.append(cfg.action_repeat) or ref
+    )
+    monkeypatch.setattr(learning, "_train", lambda steps, label, cfg, errors: trained.append(cfg))
+    out = learning.greenhouse(args)
+    assert [compare.action_repeat(c) for c in trained] == [1]
+    assert evaluated == [None, 1] and set(out["references"]) == {"8-day", "daily"}
+    assert out["runs"] == {} and out["errors"] == {}
+    with pytest.raises(SystemExit, match="no greenhouse run"):
+        learning.main(dataclasses.replace(args, daily=False))
+
+
 def _summary(values):
     return compare._summary(values)
 
