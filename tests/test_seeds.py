@@ -47,9 +47,11 @@ def _rel_error(a, b) -> float:
 
 def test_k_seeds_equal_k_one_seed_runs(batched, tmp_path):
     """Seed k of the 3-seed run is the one-seed run of seed k: the same data and replay (exactly),
-    the same ASRL and trained parameters within the float tolerance stated above."""
+    the same ASRL and trained parameters within the float tolerance stated above. Checked for
+    the last seed (its keys are the furthest from the run's own seed; the first seed's are the
+    same code path)."""
     assert batched.seeds == (0, 1, 2) and batched.state.env_steps.tolist() == [400] * SEEDS
-    for k in (0, 2):
+    for k in (SEEDS - 1,):
         one = train(_config(tmp_path / f"s{k}", seed=k, num_seeds=1), log=SILENT).for_seed(0)
         mine = batched.for_seed(k)
         assert int(mine.state.updates) == int(one.state.updates) > 0
