@@ -1008,13 +1008,16 @@ def plot(out: dict, path: str) -> None:
 
     env = out["env"]
     if env == "greenhouse":
+        # Only the intervals that were trained (--no-main / --no-daily); every interval's
+        # references when none was (all runs failed), so the figure still shows them.
+        shown = [k for k in out["references"] if k in out["runs"]] or list(out["references"])
         panels = [
             (
                 f"SCORE, {_interval_text(out['action_repeats'][label])}",
                 {"SCORE": out["runs"][label]} if label in out["runs"] else {},
-                refs,
+                out["references"][label],
             )
-            for label, refs in out["references"].items()
+            for label in shown
         ]
         xlabel = "simulated days (environment steps)"
     else:

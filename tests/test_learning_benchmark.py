@@ -194,6 +194,26 @@ def test_no_main_trains_only_the_daily_run(tmp_path, monkeypatch):
         learning.main(dataclasses.replace(args, daily=False))
 
 
+def test_figure_has_a_panel_per_trained_interval(tmp_path):
+    """A ``--no-main`` run's figure has the daily panel only (no empty 8-day axes); with no run
+    at all (every run failed) both intervals' references are still drawn."""
+    import matplotlib.image
+
+    refs = {"default": {"mean": 818.3}}
+    curve = {"seed": 0, "env_steps": [1000, 2000], "returns": [800.0, 900.0]}
+    out = {
+        "env": "greenhouse",
+        "references": {"8-day": refs, "daily": refs},
+        "action_repeats": {"8-day": 8, "daily": 1},
+        "runs": {"daily": {"curves": [curve]}},
+    }
+    widths = []
+    for runs in ({"daily": {"curves": [curve]}}, {}):
+        learning.plot({**out, "runs": runs}, str(tmp_path / "f.png"))
+        widths.append(matplotlib.image.imread(tmp_path / "f.png").shape[1])
+    assert widths[1] == 2 * widths[0]
+
+
 def _summary(values):
     return compare._summary(values)
 
