@@ -192,6 +192,8 @@ def test_no_main_trains_only_the_daily_run(tmp_path, monkeypatch):
     assert out["runs"] == {} and out["errors"] == {}
     with pytest.raises(SystemExit, match="no greenhouse run"):
         learning.main(dataclasses.replace(args, daily=False))
+    with pytest.raises(SystemExit, match="--base.seed 6 is not used"):
+        learning.main(dataclasses.replace(args, base=dataclasses.replace(args.base, seed=6)))
 
 
 def test_figure_has_a_panel_per_trained_interval(tmp_path):
