@@ -343,6 +343,16 @@ def _transfer_variants(args: CompareArgs, algo: str) -> tuple[str, ...]:
     return ("plain",)
 
 
+def refuse_seed_offset(base: TrainConfig) -> None:
+    """Rows train seeds 0..K-1 (``row_config``), so a ``--base.seed`` other than 0 is an
+    error for every script that builds rows, rather than silently ignored."""
+    if base.seed != 0:
+        raise SystemExit(
+            f"error: --base.seed {base.seed} is not used here: every run trains seeds 0..K-1 "
+            "(--seeds K)"
+        )
+
+
 def row_config(args: CompareArgs, env: str, algo: str, **overrides) -> TrainConfig:
     """The training configuration of one row: ``args.base`` on ``env`` with ``algo``, every
     seed in one run, the budget of ``decisions`` and ``--eval-points`` evaluations."""
@@ -597,6 +607,7 @@ def plot(curves: dict[str, list[dict]], path: str, title: str) -> None:
 
 
 def main(args: CompareArgs) -> int:
+    refuse_seed_offset(args.base)
     if (
         not jax.config.jax_compilation_cache_dir
     ):  # the seeds of a row compile the same programs: compile them once

@@ -1075,11 +1075,7 @@ def main(args: LearningArgs) -> int:
     """Run the selected parts; 0 when every run trained (targets met or not), 1 otherwise."""
     if "greenhouse" in args.envs and not (args.main or args.daily):
         raise SystemExit("error: --no-main --no-daily leaves no greenhouse run to train")
-    if args.base.seed != 0:  # compare.row_config trains seeds 0..K-1; say so, don't ignore it
-        raise SystemExit(
-            f"error: --base.seed {args.base.seed} is not used here: every run trains seeds "
-            "0..K-1 (--seeds K, --spider-seeds K)"
-        )
+    compare.refuse_seed_offset(args.base)
     enable_compile_cache(enabled=args.base.compile_cache)
     args = resolved(args)
     outs = []

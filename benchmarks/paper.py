@@ -513,6 +513,7 @@ def page(args: PaperArgs, p: Plan, results: list[dict], seconds: float) -> str:
 
 
 def main(args: PaperArgs) -> int:
+    compare.refuse_seed_offset(args.base)
     enable_compile_cache()
     p = plan(args)
     figdir = os.path.join(args.out, FIGURE_DIR)

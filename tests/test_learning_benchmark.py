@@ -192,8 +192,24 @@ def test_no_main_trains_only_the_daily_run(tmp_path, monkeypatch):
     assert out["runs"] == {} and out["errors"] == {}
     with pytest.raises(SystemExit, match="no greenhouse run"):
         learning.main(dataclasses.replace(args, daily=False))
-    with pytest.raises(SystemExit, match="--base.seed 6 is not used"):
-        learning.main(dataclasses.replace(args, base=dataclasses.replace(args.base, seed=6)))
+
+
+def test_seed_offset_is_refused_by_every_script_that_builds_rows(tmp_path):
+    """Rows train seeds 0..K-1, so ``--base.seed 6`` is an error before anything starts in
+    learning.py, compare.py and paper.py (it used to retrain seeds 0..K-1 silently)."""
+    from benchmarks import paper
+
+    args = _tiny_args(tmp_path)
+    base = dataclasses.replace(args.base, seed=6)
+    mains = [
+        lambda: learning.main(dataclasses.replace(args, base=base)),
+        lambda: compare.main(compare.CompareArgs(base=base, out=str(tmp_path / "c"))),
+        lambda: paper.main(paper.PaperArgs(base=base, out=str(tmp_path / "p"))),
+    ]
+    for run_main in mains:
+        with pytest.raises(SystemExit, match="--base.seed 6 is not used"):
+            run_main()
+    assert not os.listdir(tmp_path)  # refused before any output or run directory
 
 
 def test_figure_has_a_panel_per_trained_interval(tmp_path):

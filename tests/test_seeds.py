@@ -48,27 +48,27 @@ def _rel_error(a, b) -> float:
 def test_k_seeds_equal_k_one_seed_runs(batched, tmp_path):
     """Seed k of the 3-seed run is the one-seed run of seed k: the same data and replay (exactly),
     the same ASRL and trained parameters within the float tolerance stated above. Checked for
-    the last seed (its keys are the furthest from the run's own seed; the first seed's are the
-    same code path)."""
+    the last seed only (one one-seed training fewer in CI); a seed other than 0 is where a
+    batched run could mix up its seeds' keys."""
     assert batched.seeds == (0, 1, 2) and batched.state.env_steps.tolist() == [400] * SEEDS
-    for k in (SEEDS - 1,):
-        one = train(_config(tmp_path / f"s{k}", seed=k, num_seeds=1), log=SILENT).for_seed(0)
-        mine = batched.for_seed(k)
-        assert int(mine.state.updates) == int(one.state.updates) > 0
-        first = slice(0, 200)  # collected by the uniform policy before any update
-        np.testing.assert_array_equal(
-            mine.state.buffer.data.obs[first], one.state.buffer.data.obs[first]
-        )
-        frozen = (mine.state.agent.consts.critic_inputs, one.state.agent.consts.critic_inputs)
-        assert (
-            max(_rel_error(a, b) for a, b in zip(*map(jax.tree.leaves, frozen), strict=True))
-            < RTOL_ASRL
-        )
-        trained = (mine.state.agent.actor, one.state.agent.actor)
-        assert (
-            max(_rel_error(a, b) for a, b in zip(*map(jax.tree.leaves, trained), strict=True))
-            < RTOL_TRAINED
-        )
+    k = SEEDS - 1
+    one = train(_config(tmp_path / f"s{k}", seed=k, num_seeds=1), log=SILENT).for_seed(0)
+    mine = batched.for_seed(k)
+    assert int(mine.state.updates) == int(one.state.updates) > 0
+    first = slice(0, 200)  # collected by the uniform policy before any update
+    np.testing.assert_array_equal(
+        mine.state.buffer.data.obs[first], one.state.buffer.data.obs[first]
+    )
+    frozen = (mine.state.agent.consts.critic_inputs, one.state.agent.consts.critic_inputs)
+    assert (
+        max(_rel_error(a, b) for a, b in zip(*map(jax.tree.leaves, frozen), strict=True))
+        < RTOL_ASRL
+    )
+    trained = (mine.state.agent.actor, one.state.agent.actor)
+    assert (
+        max(_rel_error(a, b) for a, b in zip(*map(jax.tree.leaves, trained), strict=True))
+        < RTOL_TRAINED
+    )
 
 
 def test_seeds_are_independent(batched):
