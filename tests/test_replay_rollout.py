@@ -7,7 +7,14 @@ import numpy as np
 
 import envs
 from envs.wrappers import AutoReset
-from score_jax.agents.replay import Transition, replay_add, replay_init, replay_sample
+from score_jax.agents.replay import (
+    Transition,
+    continuation,
+    replay_add,
+    replay_init,
+    replay_sample,
+    replay_sample_nstep,
+)
 from score_jax.core.failures import FailureMode
 from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
 from score_jax.run.episodes import default_act_fn, evaluate
@@ -36,6 +43,74 @@ def test_replay_ring_overwrites_oldest():
     sample = replay_sample(buf, jax.random.PRNGKey(0), 1000)
     assert set(np.asarray(sample.reward).tolist()) == {2, 3, 4, 5, 6}
     np.testing.assert_array_equal(sample.next_obs[:, 0], sample.reward + 1)  # rows stay aligned
+
+
+def _two_env_trajectories(steps=6):
+    """Two environments' steps, written per vectorised step as the trainer does: env 0's
+    episodes end (time limit) after steps 2 and 5, env 1's step 1 is terminal. Observations
+    are unique; an episode's last next_obs is a final observation no later step starts from."""
+    rows = []
+    for t in range(steps):
+        for e in range(2):
+            ends = (e == 0 and t % 3 == 2) or (e == 1 and t == 1)
+            obs = 1000.0 * e + 10.0 * t
+            rows.append(
+                dict(
+                    obs=obs,
+                    reward=1.0 + 0.5 * e + t,
+                    next_obs=obs + 5.0 if ends else obs + 10.0,
+                    terminal=float(e == 1 and t == 1),
+                    ends=ends,
+                )
+            )
+    return rows
+
+
+def test_nstep_samples_sum_discounted_rewards_within_an_episode():
+    """n = 3 from a wrapped ring of 2 envs x 6 steps in 9 slots: every draw starts at a slot
+    whose two later steps are written, and its reward, next_obs, terminal and discount are the
+    truncated n-step return of a walk along that env's episode."""
+    rows, gamma, n = _two_env_trajectories(), 0.9, 3
+    batch = Transition(
+        obs=jnp.array([[r["obs"]] for r in rows]),
+        action=jnp.zeros((len(rows), 2, 1)),
+        reward=jnp.array([r["reward"] for r in rows]),
+        next_obs=jnp.array([[r["next_obs"]] for r in rows]),
+        terminal=jnp.array([r["terminal"] for r in rows]),
+        active=jnp.ones((len(rows), 2), bool),
+    )
+    buf = replay_init(jax.tree.map(lambda x: x[0], batch), capacity=9)
+    for t in range(6):
+        buf = replay_add(buf, jax.tree.map(lambda x, t=t: x[2 * t : 2 * t + 2], batch))
+    sample = replay_sample_nstep(buf, jax.random.PRNGKey(0), 400, n, 2, jnp.float32(gamma))
+    by_obs = {r["obs"]: i for i, r in enumerate(rows)}
+    starts = set()
+    for obs, rew, nxt, term, disc in zip(
+        *(np.asarray(x).reshape(400, -1)[:, 0] for x in (sample.obs, sample.reward)),
+        *(np.asarray(x).reshape(400, -1)[:, 0] for x in (sample.next_obs, sample.terminal)),
+        np.asarray(sample.discount),
+        strict=True,
+    ):
+        i = by_obs[float(obs)]
+        starts.add(i)
+        want, m = rows[i]["reward"], 1
+        while m < n and not rows[i + 2 * (m - 1)]["ends"]:
+            want += gamma**m * rows[i + 2 * m]["reward"]
+            m += 1
+        last = rows[i + 2 * (m - 1)]
+        np.testing.assert_allclose(
+            [rew, nxt, term, disc],
+            [want, last["next_obs"], last["terminal"], gamma ** (m - 1)],
+            rtol=1e-6,
+        )
+    # slots hold transitions 3..11; starts 3..7 have both later steps written
+    assert starts == {3, 4, 5, 6, 7}
+    one = replay_sample_nstep(buf, jax.random.PRNGKey(1), 50, 1, 2, jnp.float32(gamma))
+    ref = replay_sample(buf, jax.random.PRNGKey(1), 50)
+    jax.tree.map(np.testing.assert_array_equal, one, ref)
+    assert one.discount is None
+    np.testing.assert_array_equal(continuation(one), 1.0 - one.terminal)
+    np.testing.assert_allclose(continuation(sample), sample.discount * (1.0 - sample.terminal))
 
 
 def test_auto_reset_restarts_episodes_and_reports_final_obs():

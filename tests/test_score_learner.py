@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from score_jax.agents.replay import replay_sample
-from score_jax.agents.sac.losses import actor_loss
+from score_jax.agents.replay import replay_sample, replay_sample_nstep
+from score_jax.agents.sac.losses import actor_loss, critic_loss
 from score_jax.core.spaces import CompositeSpace, SubSpace
 from score_jax.run.build import build, restore_run
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, check_space_matches
@@ -65,6 +65,37 @@ def test_update_does_not_recompile_when_masks_change(finished_run):
         )
         assert np.isfinite(float(metrics["critic_loss"]))
     assert len(traces) == 1
+
+
+def test_nstep_target_bootstraps_with_the_samples_discount(finished_run):
+    """SCORE's critic loss reads an n-step sample's discount: a discount of 0 is a terminal
+    step (no bootstrap), a discount of 1 is the one-step target, and the trainer's n-step
+    sampling yields a finite loss."""
+    nets, state = finished_run.algo.networks, finished_run.state.agent
+    hyper = finished_run.algo.off_policy.hyper
+    n_envs = finished_run.config.off_policy.num_envs
+    buffer = finished_run.state.buffer
+    batch = replay_sample(buffer, jax.random.PRNGKey(0), 64)
+    mask = jnp.ones((64, 3), bool)
+    loss = jax.jit(
+        lambda b: critic_loss(
+            state.critic, state, b, mask, jax.random.PRNGKey(1), hyper, nets.policy_fn, nets.q_fn
+        )[0]
+    )
+    ones, zeros = jnp.ones(64), jnp.zeros(64)
+    np.testing.assert_allclose(loss(batch.replace(discount=ones)), loss(batch), rtol=1e-6)
+    np.testing.assert_allclose(
+        loss(batch.replace(discount=zeros)), loss(batch.replace(terminal=ones)), rtol=1e-6
+    )
+    assert not np.isclose(loss(batch.replace(discount=zeros)), loss(batch))
+    three = replay_sample_nstep(buffer, jax.random.PRNGKey(2), 64, 3, n_envs, hyper.gamma)
+    assert np.isfinite(float(loss(three))) and float(jnp.min(three.discount)) < 1.0
+    from score_jax.run.trainer import Trainer  # the option reaches the trainer's updates
+
+    cfg = dataclasses.replace(finished_run.config.off_policy, n_step=3, learning_starts=0)
+    trainer = Trainer(finished_run.env, finished_run.algo.off_policy, cfg, finished_run.agent_index)
+    new, metrics = trainer.epoch(trainer.init(jax.random.PRNGKey(3)), hyper)
+    assert int(new.updates) > 0 and bool(metrics.finite)
 
 
 def test_masked_agent_gets_no_actor_gradient(finished_run):

@@ -42,6 +42,10 @@ class OffPolicyConfig:
     (``env.hints.updates_per_step``: 1 on the greenhouse, 2 elsewhere)."""
     steps_per_epoch: int = 20
     """Vectorised environment steps per jitted epoch call."""
+    n_step: int = 1
+    """Steps per TD target (n-step returns, drawn from the one-step replay at sampling time:
+    ``agents.replay.replay_sample_nstep``); an episode's end or a terminal shortens it. 1 = the
+    paper's one-step target."""
     train_failures: int = 0
     """Controlled sub-spaces that fail at every collection step (redrawn each step; 0 = none).
     The environment receives the failure-mode replacement and the critic masks those agents."""

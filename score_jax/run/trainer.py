@@ -29,7 +29,13 @@ from jax.sharding import PartitionSpec as P
 from envs.base import CompositeEnv, EnvState
 from envs.wrappers import FINAL_OBS, AutoReset
 from score_jax.agents.base import OffPolicyAlgorithm
-from score_jax.agents.replay import ReplayBuffer, Transition, replay_add, replay_init, replay_sample
+from score_jax.agents.replay import (
+    ReplayBuffer,
+    Transition,
+    replay_add,
+    replay_init,
+    replay_sample_nstep,
+)
 from score_jax.core.failures import fail_batch
 from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
 from score_jax.run.config import OffPolicyConfig
@@ -207,7 +213,16 @@ class Trainer:
         def do_updates(agent):
             def one(agent, k):
                 k_sample, k_update = jax.random.split(k)
-                batch = self._shard_batch(replay_sample(buffer, k_sample, cfg.batch_size))
+                batch = self._shard_batch(
+                    replay_sample_nstep(
+                        buffer,
+                        k_sample,
+                        cfg.batch_size,
+                        cfg.n_step,
+                        cfg.num_envs,
+                        self._gamma(hyper),
+                    )
+                )
                 return self.algo.update(agent, batch, k_update, hyper)
 
             agent, metrics = jax.lax.scan(
@@ -243,6 +258,17 @@ class Trainer:
             updates=state.updates + self.updates_per_step * did.astype(jnp.int32),
         )
         return (state, hyper), (metrics, did, completed, jnp.mean(env_state.reward))
+
+    def _gamma(self, hyper) -> jax.Array | None:
+        """The algorithm's discount for n-step samples (None for one-step ones: not every
+        learner needs one)."""
+        if self.config.n_step == 1:
+            return None
+        if not hasattr(hyper, "gamma"):
+            raise ValueError(
+                f"--off-policy.n-step {self.config.n_step}: {type(hyper).__name__} has no gamma"
+            )
+        return hyper.gamma
 
     def _explore(self, state: TrainState, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The stochastic policy's actions ``[num_envs, n, w]`` and the envs' exploration keys.

@@ -27,7 +27,7 @@ import optax
 from flax import struct
 
 from score_jax.agents.base import AgentConsts
-from score_jax.agents.replay import Transition
+from score_jax.agents.replay import Transition, continuation
 
 
 @struct.dataclass
@@ -73,7 +73,7 @@ def ddpg_critic_loss(
         policy_fn(state.target_actor, consts, batch.next_obs),
         mask,
     )
-    y = hyper.reward_scale * batch.reward + hyper.gamma * (1.0 - batch.terminal) * next_q
+    y = hyper.reward_scale * batch.reward + hyper.gamma * continuation(batch) * next_q
     q = q_fn(critic_params, consts, batch.obs, batch.action, mask)
     return 0.5 * jnp.mean((q - jax.lax.stop_gradient(y)) ** 2), jnp.mean(q)
 

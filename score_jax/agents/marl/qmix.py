@@ -48,7 +48,7 @@ from score_jax.agents.growth import freeze_agent_rows, grow_stacked
 from score_jax.agents.marl import common as mc
 from score_jax.agents.marl.config import MarlConfig
 from score_jax.agents.marl.qmix_candidates import candidate_table
-from score_jax.agents.replay import Transition
+from score_jax.agents.replay import Transition, continuation
 from score_jax.networks.mlp import MLP
 
 
@@ -235,7 +235,7 @@ def qmix_loss(
     )  # double Q
     next_q = pick(nets.q_values(state.target, consts, batch.next_obs), next_index)
     next_tot = nets.mix(state.target, jnp.where(mask, next_q, 0.0), batch.next_obs, mask)
-    y = hyper.reward_scale * batch.reward + hyper.gamma * (1.0 - batch.terminal) * next_tot
+    y = hyper.reward_scale * batch.reward + hyper.gamma * continuation(batch) * next_tot
     return 0.5 * jnp.mean((q_tot - jax.lax.stop_gradient(y)) ** 2), jnp.mean(q_tot)
 
 

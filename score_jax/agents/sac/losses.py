@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from score_jax.agents.base import AgentConsts, CriticKind
-from score_jax.agents.replay import Transition
+from score_jax.agents.replay import Transition, continuation
 from score_jax.agents.sac.state import SACHyper, SACState
 
 PolicyFn = Callable[..., tuple[jax.Array, jax.Array]]
@@ -55,7 +55,7 @@ def critic_loss(
     per_agent = critic == "per_agent"
     soft_next = next_q - (entropy if per_agent else jnp.sum(entropy, axis=-1))
     reward = batch.reward[:, None] if per_agent else batch.reward
-    not_done = (1.0 - batch.terminal)[:, None] if per_agent else 1.0 - batch.terminal
+    not_done = continuation(batch)[:, None] if per_agent else continuation(batch)
     y = hyper.reward_scale * reward + hyper.gamma * not_done * soft_next
     q = q_fn(critic_params, consts, batch.obs, batch.action, mask)
     err = (q - jax.lax.stop_gradient(y)[:, None]) ** 2
