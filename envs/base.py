@@ -64,6 +64,7 @@ class EnvHints:
       action_repeat: environment steps a learner's decision is held for (``ActionRepeat``).
       exploration_hold: environment steps an exploration draw is held for (gSDE-style).
       updates_per_step: gradient updates per vectorised step of the off-policy trainer.
+      n_step: steps per TD target of the off-policy learners (1 = one-step targets).
       total_steps: preset training budget, in decisions (steps of the action-repeated env).
       eval_every: preset interval of deterministic evaluations, in decisions (0 = at the end).
     """
@@ -72,6 +73,7 @@ class EnvHints:
     action_repeat: int = 1
     exploration_hold: int = 1
     updates_per_step: int = 2
+    n_step: int = 1
     total_steps: int = 100_000
     eval_every: int = 0
 

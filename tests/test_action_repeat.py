@@ -64,6 +64,12 @@ def test_repeat_one_is_the_env_itself_and_suggestions_resolve():
     assert resolve(given, greenhouse).updates_per_step == 3
     with pytest.raises(ValueError, match="updates_per_step"):
         resolve(TrainConfig(off_policy=OffPolicyConfig(updates_per_step=0)), greenhouse)
+    # and so are the TD targets' steps: three on the greenhouse, one elsewhere
+    assert resolve(TrainConfig(), greenhouse).n_step == 3
+    assert resolve(TrainConfig(env="probe"), env).n_step == 1
+    assert resolve(TrainConfig(off_policy=OffPolicyConfig(n_step=1)), greenhouse).n_step == 1
+    with pytest.raises(ValueError, match="n_step"):
+        resolve(TrainConfig(off_policy=OffPolicyConfig(n_step=0)), greenhouse)
 
 
 def test_repeated_greenhouse_season_returns_the_daily_return():

@@ -42,6 +42,7 @@ HEADER_ITEMS = (
     "evaluation:",
     "checkpoints:",
     "action repeat:",
+    "updates:",
     "tracking:",
     "compile cache:",
 )
@@ -114,6 +115,7 @@ def test_header_comes_first_one_line_per_item(tracked_run):
     assert items["budget"].startswith("400 decisions = 400 env steps")
     assert items["evaluation"] == "at the end only, 4 episodes"
     assert items["action repeat"] == "1 env step per decision"
+    assert items["updates"].endswith("1-step TD targets")
     assert "tensorboard (" in items["tracking"]
 
 

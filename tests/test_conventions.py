@@ -231,6 +231,7 @@ def test_header_has_one_line_per_item_with_the_resolved_numbers(tmp_path):
         "evaluation",
         "checkpoints",
         "action repeat",
+        "updates",
         "tracking",
         "compile cache",
     ]
@@ -241,6 +242,7 @@ def test_header_has_one_line_per_item_with_the_resolved_numbers(tmp_path):
     assert "every 16000 decisions (9 evaluations), 10 episodes" in items["evaluation"]
     assert "every 14400 decisions" in items["checkpoints"]
     assert items["action repeat"].strip() == "8 env steps per decision"
+    assert items["updates"].strip() == "1 per vectorised step, batch 128, 3-step TD targets"
     assert "csv (" in items["tracking"] and "tensorboard (" in items["tracking"]
     assert items["compile cache"].strip() == jax.config.jax_compilation_cache_dir
 

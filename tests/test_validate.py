@@ -306,3 +306,9 @@ def test_saved_config_keeps_the_defaults_it_ran_with():
     saved["off_policy"]["updates_per_step"] = None  # a hinted one resumes as it resolved
     saved["resolved"]["updates_per_step"] = 1
     assert from_saved(saved).off_policy.updates_per_step == 1
+    # runs saved before n-step returns trained one-step targets; hinted ones resume as resolved
+    del saved["off_policy"]["n_step"]
+    assert from_saved(saved).off_policy.n_step == 1
+    saved["off_policy"]["n_step"] = None
+    saved["resolved"]["n_step"] = 3
+    assert from_saved(saved).off_policy.n_step == 3

@@ -195,6 +195,7 @@ def build(
             cfg.off_policy,
             exploration_hold=spec.exploration_hold,
             updates_per_step=spec.updates_per_step,
+            n_step=spec.n_step,
         )
         # Seeds over the devices when they divide evenly (whole runs per device), else each
         # seed's environments and batches (see SeedTrainer).

@@ -42,10 +42,11 @@ class OffPolicyConfig:
     (``env.hints.updates_per_step``: 1 on the greenhouse, 2 elsewhere)."""
     steps_per_epoch: int = 20
     """Vectorised environment steps per jitted epoch call."""
-    n_step: int = 1
+    n_step: int | None = None
     """Steps per TD target (n-step returns, drawn from the one-step replay at sampling time:
     ``agents.replay.replay_sample_nstep``); an episode's end or a terminal shortens it. 1 = the
-    paper's one-step target."""
+    paper's one-step target; None = the environment's suggestion (``env.hints.n_step``: 3 on
+    the greenhouse, 1 elsewhere)."""
     train_failures: int = 0
     """Controlled sub-spaces that fail at every collection step (redrawn each step; 0 = none).
     The environment receives the failure-mode replacement and the critic masks those agents."""
@@ -246,7 +247,8 @@ class RunSpec:
       run_dir: where everything goes.
       total_steps, eval_every, checkpoint_every: decisions (steps of the action-repeated env).
       action_repeat: environment steps per decision; exploration_hold: steps an exploration
-        draw is held; updates_per_step: gradient updates per vectorised step; width: the
+        draw is held; updates_per_step: gradient updates per vectorised step; n_step: steps
+        per TD target; width: the
         agents' padded action width.
       steps_per_epoch: decisions per jitted epoch of the off-policy trainer.
     """
@@ -258,6 +260,7 @@ class RunSpec:
     action_repeat: int
     exploration_hold: int
     updates_per_step: int
+    n_step: int
     width: int
     steps_per_epoch: int
 
@@ -276,6 +279,7 @@ def resolve(cfg: TrainConfig, env) -> RunSpec:
     repeat = hints.pick("action_repeat", cfg.action_repeat)
     hold = hints.pick("exploration_hold", cfg.off_policy.exploration_hold)
     updates = hints.pick("updates_per_step", cfg.off_policy.updates_per_step)
+    n_step = hints.pick("n_step", cfg.off_policy.n_step)
     width = env.space.max_dim if cfg.action_width is None else cfg.action_width
     if width < env.space.max_dim:
         raise ValueError(
@@ -295,6 +299,7 @@ def resolve(cfg: TrainConfig, env) -> RunSpec:
         action_repeat=repeat,
         exploration_hold=hold,
         updates_per_step=updates,
+        n_step=n_step,
         width=int(width),
         steps_per_epoch=int(spe),
     )
@@ -312,6 +317,7 @@ def to_dict(cfg) -> dict:
 # configuration that lacks the key ran with that value, so it rebuilds (and restores) as it ran.
 CHANGED_DEFAULTS: dict[tuple[str, ...], object] = {
     ("score", "critic", "finetune_asrl"): False,
+    ("off_policy", "n_step"): 1,  # runs saved before n-step returns trained with one-step targets
 }
 
 
@@ -321,6 +327,7 @@ HINTED_OPTIONS: dict[tuple[str, ...], str] = {
     ("action_repeat",): "action_repeat",
     ("off_policy", "exploration_hold"): "exploration_hold",
     ("off_policy", "updates_per_step"): "updates_per_step",
+    ("off_policy", "n_step"): "n_step",
 }
 
 

@@ -116,6 +116,13 @@ def header_lines(cfg: TrainConfig, spec: RunSpec, env) -> list[str]:
             "action repeat",
             f"{spec.action_repeat} env step{'s' if spec.action_repeat > 1 else ''} per decision",
         ),
+        (
+            "updates",
+            f"{spec.updates_per_step} per vectorised step, batch {cfg.off_policy.batch_size}, "
+            f"{spec.n_step}-step TD targets"
+            if in_process
+            else "brax's own schedule",
+        ),
         ("tracking", _tracking(cfg, spec.run_dir)),
         ("compile cache", cache_status()),
     ]
@@ -178,7 +185,8 @@ def describe_environment(name: str, overrides: dict | None = None) -> str:
         f"presets: budget {hints.total_steps} decisions, {evaluation}, action repeat "
         f"{hints.action_repeat} "
         f"({repeated.episode_length} decisions per episode), exploration hold "
-        f"{hints.exploration_hold}, {hints.updates_per_step} update(s) per step, reward scale "
+        f"{hints.exploration_hold}, {hints.updates_per_step} update(s) per step, "
+        f"{hints.n_step}-step TD targets, reward scale "
         f"{hints.reward_scale:g}",
         f"reference policies: {', '.join(['random', 'default', *env.reference_policies()])}",
         "",

@@ -111,6 +111,7 @@ class Trainer:
         # directly) means the environment's suggestion, as there.
         self.hold = env.hints.pick("exploration_hold", config.exploration_hold)
         self.updates_per_step = env.hints.pick("updates_per_step", config.updates_per_step)
+        self.n_step = env.hints.pick("n_step", config.n_step)
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
@@ -218,7 +219,7 @@ class Trainer:
                         buffer,
                         k_sample,
                         cfg.batch_size,
-                        cfg.n_step,
+                        self.n_step,
                         cfg.num_envs,
                         self._gamma(hyper),
                     )
@@ -262,11 +263,11 @@ class Trainer:
     def _gamma(self, hyper) -> jax.Array | None:
         """The algorithm's discount for n-step samples (None for one-step ones: not every
         learner needs one)."""
-        if self.config.n_step == 1:
+        if self.n_step == 1:
             return None
         if not hasattr(hyper, "gamma"):
             raise ValueError(
-                f"--off-policy.n-step {self.config.n_step}: {type(hyper).__name__} has no gamma"
+                f"--off-policy.n-step {self.n_step}: {type(hyper).__name__} has no gamma"
             )
         return hyper.gamma
 
