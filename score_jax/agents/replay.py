@@ -91,7 +91,8 @@ def replay_sample_nstep(
     """``batch_size`` n-step transitions: ``reward`` = sum_{k<m} gamma^k r_{t+k}, ``next_obs`` and
     ``terminal`` of step t+m-1, ``discount`` = gamma^(m-1), where m <= n stops after a terminal
     step or at the end of the episode (the next stored step's ``obs`` is not this one's
-    ``next_obs``: a reset came between). ``obs``, ``action`` and ``active`` are step t's.
+    ``next_obs``: a reset came between; an environment whose reset observation can equal a
+    final one would chain episodes). ``obs``, ``action`` and ``active`` are step t's.
 
     The buffer is written ``stride`` (the number of environments) transitions per vectorised
     step, so an environment's step t+k is ``k * stride`` slots after its step t. Starts are drawn
@@ -117,9 +118,10 @@ def replay_sample_nstep(
     powers = gamma ** jnp.arange(n, dtype=jnp.float32)  # [n]
     reward = jnp.sum(jnp.where(counted, powers * steps.reward, 0.0), axis=1)
     last = jnp.sum(counted, axis=1) - 1  # [B], m - 1
-    at_last = lambda x: jnp.take_along_axis(x, last.reshape((-1, 1) + (1,) * (x.ndim - 2)), axis=1)[
-        :, 0
-    ]
+
+    def at_last(x):  # [B, n, ...] -> [B, ...], each sample's step m-1
+        return jnp.take_along_axis(x, last.reshape((-1, 1) + (1,) * (x.ndim - 2)), axis=1)[:, 0]
+
     first = jax.tree.map(lambda x: x[:, 0], steps)
     return first.replace(
         reward=reward,

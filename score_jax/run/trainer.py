@@ -261,15 +261,8 @@ class Trainer:
         return (state, hyper), (metrics, did, completed, jnp.mean(env_state.reward))
 
     def _gamma(self, hyper) -> jax.Array | None:
-        """The algorithm's discount for n-step samples (None for one-step ones: not every
-        learner needs one)."""
-        if self.n_step == 1:
-            return None
-        if not hasattr(hyper, "gamma"):
-            raise ValueError(
-                f"--off-policy.n-step {self.n_step}: {type(hyper).__name__} has no gamma"
-            )
-        return hyper.gamma
+        """The algorithm's discount for n-step samples; None for one-step ones, which need none."""
+        return hyper.gamma if self.n_step > 1 else None
 
     def _explore(self, state: TrainState, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The stochastic policy's actions ``[num_envs, n, w]`` and the envs' exploration keys.
