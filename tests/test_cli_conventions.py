@@ -288,3 +288,28 @@ def test_without_ffmpeg_the_mp4_is_refused_with_the_install_hint(tmp_path, monke
     with pytest.raises(RuntimeError, match="imageio-ffmpeg"):
         render.save_frames(frames, tmp_path, png=False, gif=True, mp4=True)
     assert (tmp_path / "rollout.gif").exists()  # the GIF is written before
+
+
+def test_messages_name_decisions_and_env_steps_apart(tmp_path):
+    """With decisions held 8 env steps a log line says which count it gives (the greenhouse's
+    evaluations used to print decisions as "env step"); with one step per decision the two
+    counts are the same and the line says "env step"."""
+    from score_jax.run.recorder import RunRecorder, step_label
+
+    assert step_label(400) == "env step 400"
+    assert step_label(16_000, 8) == "decision 16000 (env step 128000)"
+    logs: list[str] = []
+    recorder = RunRecorder(
+        str(tmp_path),
+        ["wall_s", "eval_return"],
+        total=40,
+        quiet=True,
+        meta={},
+        keep_best=False,
+        seeds=(0, 1),
+        log=logs.append,
+        action_repeat=8,
+    )
+    recorder.record(20, [{"eval_return": 1.0}, {"eval_return": 3.0}], None)
+    recorder.close()
+    assert logs and logs[-1].startswith("decision 20 (env step 160): evaluation mean 2.0 over 2")

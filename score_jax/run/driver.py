@@ -31,7 +31,7 @@ from score_jax.run.checkpoint import Checkpointer, CheckpointError, checks_for, 
 from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, to_dict
 from score_jax.run.external import RESUME_ERROR, fit_external
 from score_jax.run.provenance import provenance
-from score_jax.run.recorder import NonFiniteError, RunRecorder
+from score_jax.run.recorder import NonFiniteError, RunRecorder, step_label
 from score_jax.run.summary import announce, resolved_config, tracking_kinds
 from score_jax.run.validate import prepare_train
 
@@ -135,7 +135,7 @@ def train(
         state = run.trainer.place(state)
     resume_from = int(np.max(distributed.to_host(state.env_steps))) if cfg.resume else None
     if cfg.resume:
-        log(f"resumed {run_dir} at env step {resume_from}")
+        log(f"resumed {run_dir} at {step_label(resume_from, run.spec.action_repeat)}")
     run.state = state
     recorder = _recorder(run, resume_from, log, on_epoch)
     return _fit_off_policy(run, recorder, ckpt)
@@ -161,6 +161,7 @@ def _recorder(
         wandb_project=run.config.wandb_project,
         wandb_mode=run.config.wandb_mode,
         wandb_config={**to_dict(run.config), "resolved": run.spec.to_dict()},
+        action_repeat=run.spec.action_repeat,
     )
 
 
@@ -176,6 +177,7 @@ def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
     steps = int(np.max(env_steps))
     last_ckpt = steps
     hyper = run.algo.off_policy.hyper
+    label = lambda decisions: step_label(decisions, spec.action_repeat)
     while steps < spec.total_steps:
         state, metrics = run.trainer.epoch(state, hyper)
         # everything the host reads of this epoch, in one transfer (distributed: one gather)
@@ -184,7 +186,7 @@ def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
         )
         for k in np.flatnonzero(alive & ~now_alive):
             recorder.progress.write(
-                f"seed {run.seeds[k]}: non-finite loss or parameter at env step {steps + spe}; "
+                f"seed {run.seeds[k]}: non-finite loss or parameter at {label(steps + spe)}; "
                 "this seed stopped (its last finite state is kept), the others go on",
                 recorder.log,
             )
@@ -194,8 +196,8 @@ def _fit_off_policy(run: Run, recorder: RunRecorder, ckpt: Checkpointer) -> Run:
             recorder.close()
             which = "every seed" if run.num_seeds > 1 else "the run"
             raise NonFiniteError(
-                f"non-finite loss or parameter at env step {steps + spe} in {which}; stopped. "
-                f"The last good checkpoint (env step {last_ckpt}) is kept in {ckpt.directory}."
+                f"non-finite loss or parameter at {label(steps + spe)} in {which}; stopped. "
+                f"The last good checkpoint ({label(last_ckpt)}) is kept in {ckpt.directory}."
             )
         steps = int(np.max(env_steps))
         rows = _epoch_rows(host_metrics, updates)

@@ -21,6 +21,15 @@ from score_jax.run.writers import NullWriter, make_writers, truncate_csv
 METRICS_CSV = "metrics.csv"
 
 
+def step_label(decisions: int, action_repeat: int = 1) -> str:
+    """How a message names a point of a run: ``"env step N"``, or with decisions held
+    ``action_repeat > 1`` env steps (the greenhouse's 8 days) ``"decision N (env step M)"``, so
+    that a log line never passes decisions off as environment steps."""
+    if action_repeat == 1:
+        return f"env step {decisions}"
+    return f"decision {decisions} (env step {decisions * action_repeat})"
+
+
 class NonFiniteError(RuntimeError):
     """A loss or parameter became NaN/inf; the run stopped at the last good checkpoint."""
 
@@ -70,6 +79,7 @@ class RunRecorder:
     ``resume_from``: on resume, the decision count of the restored checkpoint (rows after it
     are produced again, so they are dropped); None for a new run (the file is started anew).
     ``meta``: the run's checkpoint metadata, saved with the best policies.
+    ``action_repeat``: env steps per decision, for the messages (``step_label``).
     ``track``: metric writers besides the CSV file (``tensorboard``, ``wandb``; see
     ``run.writers.make_writers``); ``wandb_project``, ``wandb_mode``, ``wandb_config``: the W&B
     run's project, mode and config.
@@ -91,6 +101,7 @@ class RunRecorder:
         wandb_project: str = "score-jax",
         wandb_mode: str | None = None,
         wandb_config: dict | None = None,
+        action_repeat: int = 1,
     ):
         path = os.path.join(run_dir, METRICS_CSV)
         writes = distributed.is_primary()  # distributed: only process 0 writes
@@ -117,6 +128,7 @@ class RunRecorder:
             BestPolicy(run_dir, resume_from is None, len(self.seeds), log) if keep_best else None
         )
         self.meta, self.log, self.on_row = meta, log, on_row
+        self.action_repeat = action_repeat
         self.t0 = time.time()
         self.done = resume_from or 0
         self.last_step = resume_from or 0
@@ -170,9 +182,10 @@ class RunRecorder:
         if self.best is not None and agent is not None:
             kept = self.best.offer(env_steps, evaluations, agent, self.meta)
         done = ~np.isnan(evaluations)
+        where = step_label(env_steps, self.action_repeat)
         if len(evaluations) == 1:
             note = f", the best so far (saved to {self.best.ckpt.directory})" if kept[0] else ""
-            message = f"env step {env_steps}: evaluation {evaluations[0]:.1f}{note}"
+            message = f"{where}: evaluation {evaluations[0]:.1f}{note}"
         else:
             per_seed = " ".join(
                 f"{v:.1f}{'*' if b else ''}"
@@ -180,7 +193,7 @@ class RunRecorder:
                 if d
             )
             message = (
-                f"env step {env_steps}: evaluation mean {np.nanmean(evaluations):.1f} over "
+                f"{where}: evaluation mean {np.nanmean(evaluations):.1f} over "
                 f"{int(done.sum())} seeds ({per_seed}; * = that seed's best so far)"
             )
         self.progress.write(message, self.log)

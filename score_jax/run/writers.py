@@ -1,7 +1,8 @@
 """Metric writers (experiment tracking) behind one interface.
 
 ``MetricWriter`` is anything with ``write(step, metrics, seed=None)`` and ``close()``; ``step`` is
-the number of environment steps. Implementations:
+the number of decisions per seed (environment steps when a decision is one step; with a
+decision held ``action_repeat`` steps, as on the greenhouse, multiply by it). Implementations:
 
 - ``CsvWriter``: one CSV file, columns ``env_steps``, ``seed`` (only when the first row gave a
   seed), then the metric names of the first row (or ``columns``). Appending to an existing file
