@@ -1,6 +1,6 @@
 """With two forced host devices (in a subprocess): the data-parallel epoch equals the
 single-device one, and so does the robustness sweep with its settings sharded (also for an
-agent committed to one device)."""
+agent committed to one device); a one-seed view of seed-sharded leaves lives on one device."""
 
 import os
 import subprocess
@@ -52,6 +52,18 @@ np.testing.assert_allclose(
     rtol=1e-5,
     atol=1e-5,
 )
+# a one-seed view (Run.for_seed) of seed-sharded leaves lives on one device, uncommitted, so
+# programs on it are not replicated over the mesh (and never wait in a cross-device rendezvous)
+from jax.sharding import NamedSharding, PartitionSpec
+from score_jax.run.build import _seed_of
+stacked = np.arange(24.0).reshape(2, 3, 4)
+for spec in (PartitionSpec("data"), PartitionSpec()):
+    x = jax.device_put(stacked, NamedSharding(make_data_mesh(), spec))
+    assert len(x.sharding.device_set) == 2
+    for k in (0, 1):
+        row = _seed_of(x, k)
+        assert len(row.sharding.device_set) == 1 and not row.committed, row.sharding
+        np.testing.assert_array_equal(row, stacked[k])
 print("SHARDED_OK", int(a.updates))
 """
 

@@ -41,6 +41,24 @@ def seed_keys(seeds) -> tuple[jax.Array, jax.Array]:
     return keys[:, 0], keys[:, 1]
 
 
+def _seed_of(x: Any, k: int) -> Any:
+    """Row ``k`` of a seed-stacked leaf, on one device and uncommitted (like a fresh state's
+    leaves), read from the local shard that holds it.
+
+    Indexing an array sharded over the seed mesh gives a result replicated over every device,
+    so each later program on a one-seed view (an evaluation, a season plot) would run on all
+    of them, doubling the work on a 2-core host, and wait in a cross-device rendezvous that
+    XLA's CPU client aborts after 40 s when a device's thread is held up (seen drawing
+    ``benchmarks/paper.py``'s Fig. 10)."""
+    if isinstance(x, jax.Array) and len(x.sharding.device_set) > 1:
+        for shard in x.addressable_shards:
+            rows = shard.index[0] if shard.index else slice(None)
+            start, stop, _ = rows.indices(x.shape[0])
+            if start <= k < stop:
+                return jnp.asarray(np.asarray(shard.data)[k - start])
+    return x[k]
+
+
 @dataclasses.dataclass
 class Run:
     """Everything a run (finished, resumed or fresh) hands to evaluation, plots and transfer.
@@ -101,7 +119,7 @@ class Run:
         """The one-seed view of seed ``seeds[k]``: its state without the seed axis."""
         if not self.batched:
             raise ValueError("for_seed: this is already a one-seed view")
-        pick = lambda tree: None if tree is None else jax.tree.map(lambda x: x[k], tree)
+        pick = lambda tree: None if tree is None else jax.tree.map(lambda x: _seed_of(x, k), tree)
         return dataclasses.replace(
             self,
             trainer=self.trainer.single,
