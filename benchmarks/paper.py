@@ -448,9 +448,13 @@ def tables_markdown(rows: dict) -> str:
     )
 
 
-def page(args: PaperArgs, p: Plan, results: list[dict], seconds: float) -> str:
-    """results.md."""
-    git = git_info() or {}
+def page(
+    args: PaperArgs, p: Plan, results: list[dict], seconds: float, git: dict | None = None
+) -> str:
+    """results.md. ``git``: the checkout's ``git_info()`` taken before anything was written (a
+    page written into the repository, ``--out docs``, would otherwise call its own figures a
+    dirty tree); None = now."""
+    git = (git_info() if git is None else git) or {}
     cmd = "python benchmarks/paper.py " + " ".join(sys.argv[1:])
     lines = [
         "# The paper's experiments, reproduced",
@@ -519,9 +523,10 @@ def main(args: PaperArgs) -> int:
     figdir = os.path.join(args.out, FIGURE_DIR)
     os.makedirs(figdir, exist_ok=True)
     t0 = time.time()
+    git = git_info()  # before the figures land in a tracked --out (docs/)
     log = lambda m: print(m, flush=True)
     results = [env_results(args, p, env, figdir, log) for env in p.envs]
-    text = page(args, p, results, time.time() - t0)
+    text = page(args, p, results, time.time() - t0, git)
     with open(os.path.join(args.out, "results.md"), "w") as f:
         f.write(text)
     with open(os.path.join(figdir, "results.json"), "w") as f:

@@ -66,3 +66,14 @@ def test_quick_base_caps_asrl_and_checkpoints_unless_base_sets_them():
     own = paper.quick_base(paper.PaperArgs(quick=True, base=TrainConfig(checkpoint_every=7)))
     assert own.checkpoint_every == 7
     assert paper.quick_base(paper.PaperArgs()) == paper.PaperArgs().base
+
+
+def test_page_names_the_commit_it_was_given():
+    """main() takes the checkout's state before anything is written, so a page written into the
+    repository (--out docs) is not called dirty by its own figures; page() prints what it got."""
+    args = paper.PaperArgs(quick=True, envs=("probe",))
+    p = paper.plan(args)
+    md = paper.page(args, p, [], 60.0, {"commit": "abc123", "dirty": False})
+    assert "- Commit: `abc123`\n" in md
+    md = paper.page(args, p, [], 60.0, {"commit": "abc123", "dirty": True})
+    assert "- Commit: `abc123` (dirty)\n" in md
