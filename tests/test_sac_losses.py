@@ -7,7 +7,7 @@ import optax
 
 from score_jax.agents.base import AgentConsts, target_entropy
 from score_jax.agents.replay import Transition
-from score_jax.agents.sac.losses import actor_loss, alpha_loss, critic_loss
+from score_jax.agents.sac.losses import actor_loss, alpha_loss, critic_loss, pessimistic_q
 from score_jax.agents.sac.state import SACHyper, SACState
 from score_jax.agents.sac.update import make_sac_update
 
@@ -73,6 +73,49 @@ def test_critic_loss_by_hand():
     q = np.stack([1.0 * s + 0.5 * OBS[:, 0], 2.0 * s - 0.5 * OBS[:, 0]], -1)
     expected = 0.5 * np.mean(np.sum((q - y[:, None]) ** 2, -1))
     np.testing.assert_allclose(float(loss), expected, rtol=1e-5)
+
+
+def test_pessimism_moves_from_the_twins_min_to_their_mean():
+    q = jax.random.normal(jax.random.PRNGKey(3), (64, 2, 3)) * 100.0  # [B, k=2, n]
+    # beta = 1 is clipped double Q bit for bit, so the default reproduces earlier runs exactly
+    np.testing.assert_array_equal(pessimistic_q(q, 1.0), jnp.min(q, axis=1))
+    np.testing.assert_allclose(pessimistic_q(q, 0.0), jnp.mean(q, axis=1), rtol=1e-5, atol=1e-4)
+    gap = jnp.abs(q[:, 0] - q[:, 1])
+    np.testing.assert_allclose(
+        pessimistic_q(q, 0.25), jnp.mean(q, axis=1) - 0.25 * gap / 2, rtol=1e-5, atol=1e-4
+    )
+    one = q[:, :1]  # a single critic (k = 1) is its own estimate at any beta
+    np.testing.assert_array_equal(pessimistic_q(one, 0.3), one[:, 0])
+
+
+def test_critic_and_actor_losses_with_the_twins_mean():
+    state = _state()
+    batch = Transition(OBS, ACTION, REWARD, NEXT, TERMINAL, np.ones((2, 2), bool))
+    hyper = SACHyper(
+        jnp.float32(GAMMA), jnp.float32(0.005), jnp.float32(0.0), jnp.float32(1.0), jnp.float32(0.0)
+    )
+    loss, _ = critic_loss(
+        state.critic, state, batch, MASK, jax.random.PRNGKey(0), hyper, policy_fn, q_fn
+    )
+    a_next, logp_next = _np_policy(0.7, NEXT)
+    s_next = np.sum(np.where(MASK, a_next, 0), -1)
+    q_next = 0.5 * (0.8 * s_next + 0.2 * NEXT[:, 0] + 1.5 * s_next + 0.1 * NEXT[:, 0])
+    y = REWARD + GAMMA * (1 - TERMINAL) * (
+        q_next - ALPHA * np.sum(np.where(MASK, logp_next, 0), -1)
+    )
+    s = np.sum(np.where(MASK, ACTION[..., 0], 0), -1)
+    q = np.stack([1.0 * s + 0.5 * OBS[:, 0], 2.0 * s - 0.5 * OBS[:, 0]], -1)
+    np.testing.assert_allclose(
+        float(loss), 0.5 * np.mean(np.sum((q - y[:, None]) ** 2, -1)), rtol=1e-5
+    )
+    a_loss, _ = actor_loss(
+        state.actor, state, batch, MASK, jax.random.PRNGKey(0), policy_fn, q_fn, pessimism=0.0
+    )
+    a, logp = _np_policy(0.7, OBS)
+    s = np.sum(np.where(MASK, a, 0), -1)
+    q_mean = 0.5 * (1.0 * s + 0.5 * OBS[:, 0] + 2.0 * s - 0.5 * OBS[:, 0])
+    slp = np.sum(np.where(MASK, logp, 0), -1)
+    np.testing.assert_allclose(float(a_loss), np.mean(ALPHA * slp - q_mean), rtol=1e-5)
 
 
 def test_actor_and_alpha_loss_by_hand():

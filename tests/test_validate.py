@@ -74,6 +74,7 @@ BAD_TRAIN_INPUTS = [
     (["--algo", "nope"], "unknown algorithm"),
     (["--score.gamma", "nan"], "--score.gamma nan: must be a finite number"),
     (["--marl.tau", "2"], "--marl.tau 2.0: must be in (0, 1]"),
+    (["--score.critic-pessimism", "1.5"], "--score.critic-pessimism 1.5: must be in [0, 1]"),
     (["--render"], "--render needs a MuJoCo environment"),
     (["--total-steps", "100"], "before its first gradient update"),
     (["--off-policy.train-failures", "3"], "must be below the 3 controlled sub-spaces"),

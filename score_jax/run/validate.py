@@ -46,6 +46,7 @@ ZERO_OK = frozenset(
 )
 UNIT_INTERVAL = frozenset(
     {"gamma", "discounting", "gae_lambda", "dropnode_prob", "qmix_eps_start", "qmix_eps_end"}
+    | {"critic_pessimism"}
 )
 POSITIVE = frozenset(
     {"actor_lr", "critic_lr", "alpha_lr", "learning_rate", "init_alpha", "grad_clip"}

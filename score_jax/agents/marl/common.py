@@ -77,6 +77,7 @@ def sac_hyper(m: MarlConfig, env) -> SACHyper:
         tau=f(m.tau),
         dropnode_prob=f(0.0),
         reward_scale=f(m.resolved_reward_scale(env)),
+        pessimism=f(m.critic_pessimism),
     )
 
 

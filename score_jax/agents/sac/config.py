@@ -22,6 +22,12 @@ class SACSettings:
     """Discount factor."""
     tau: float = 0.005
     """Polyak rate of every target network (Alg. 1 line 15: rho = 1 - tau)."""
+    critic_pessimism: float = 1.0
+    """How the twin critics' estimates combine in the TD targets and the actor's objective:
+    ``mean - beta |Q1 - Q2| / 2`` with this beta in [0, 1]. 1 is clipped double Q (their
+    minimum, SAC's and the paper's), 0 their mean (less pessimistic about actions away from the
+    replay data, where the twins disagree most). Fed as an array: changing it does not
+    recompile."""
     reward_scale: float | None = None
     """Rewards are multiplied by this in the targets; None = the environment's suggestion
     (``env.hints.reward_scale``: 0.05 for the greenhouse's cumulative reward, else 1)."""

@@ -29,6 +29,19 @@ PolicyFn = Callable[..., tuple[jax.Array, jax.Array]]
 QFn = Callable[..., jax.Array]
 
 
+def pessimistic_q(q: jax.Array, pessimism) -> jax.Array:
+    """The critics' estimates on axis 1 combined with pessimism beta in [0, 1]:
+    ``min_j Q_j + (1 - beta) (max_j Q_j - min_j Q_j) / 2``.
+
+    For twins this is ``mean_j Q_j - beta |Q_1 - Q_2| / 2`` (the pessimism of Tactical Optimism
+    and Pessimism, Moskovitz et al. 2021): beta = 1 is clipped double Q (``min``, SAC's and the
+    paper's), beta = 0 the twins' mean. Written from the min so that beta = 1 gives exactly
+    ``min`` (adding zero), bit for bit. ``q [B, k, ...] -> [B, ...]``.
+    """
+    low, high = jnp.min(q, axis=1), jnp.max(q, axis=1)
+    return low + (1.0 - pessimism) * 0.5 * (high - low)
+
+
 def critic_loss(
     critic_params,
     state: SACState,
@@ -45,11 +58,12 @@ def critic_loss(
     Centralised ``q [B, 2]``: ``y = r + gamma (min_j Q'_j - sum_i alpha_i log pi_i)``.
     Per-agent ``q [B, k, n]``: ``y_i = r + gamma (min_j Q'_ij - alpha_i log pi_i)`` and the
     squared errors are summed over the agents where ``mask`` is True (independent learners).
+    ``min_j`` is ``pessimistic_q`` with ``hyper.pessimism`` (exactly the min at 1).
     """
     consts = state.consts
     next_action, next_logp = policy_fn(state.actor, consts, batch.next_obs, key, False)
-    next_q = jnp.min(
-        q_fn(state.target_critic, consts, batch.next_obs, next_action, mask), axis=1
+    next_q = pessimistic_q(
+        q_fn(state.target_critic, consts, batch.next_obs, next_action, mask), hyper.pessimism
     )  # [B] or [B, n]
     entropy = jnp.where(mask, jnp.exp(state.log_alpha) * next_logp, 0.0)  # [B, n]
     per_agent = critic == "per_agent"
@@ -79,15 +93,19 @@ def actor_loss(
     policy_fn: PolicyFn,
     q_fn: QFn,
     critic: CriticKind = "centralised",
+    pessimism=1.0,
 ):
     """Alg. 1 line 14: mean of sum_i alpha_i log pi_i - min_j Q_j(o, a~(o)); masked agents excluded.
 
     With per-agent critics (``q [B, k, n]``) the Q term is ``sum_i min_j Q_ij`` over the agents
-    where ``mask`` is True. Returns ``(loss, log_prob [B, n])`` (the log-probs feed the
-    temperature update)."""
+    where ``mask`` is True. ``min_j`` is ``pessimistic_q`` with ``pessimism`` (the update passes
+    ``hyper.pessimism``, as for the targets). Returns ``(loss, log_prob [B, n])`` (the
+    log-probs feed the temperature update)."""
     consts = state.consts
     action, logp = policy_fn(actor_params, consts, batch.obs, key, False)
-    q = jnp.min(q_fn(state.critic, consts, batch.obs, action, mask), axis=1)  # [B] or [B, n]
+    q = pessimistic_q(
+        q_fn(state.critic, consts, batch.obs, action, mask), pessimism
+    )  # [B] or [B, n]
     if critic == "per_agent":
         q = jnp.sum(jnp.where(mask, q, 0.0), axis=-1)
     loss = jnp.mean(jnp.sum(jnp.where(mask, jnp.exp(state.log_alpha) * logp, 0.0), axis=-1) - q)

@@ -18,6 +18,8 @@ class SACHyper:
     tau: jax.Array
     dropnode_prob: jax.Array
     reward_scale: jax.Array
+    pessimism: jax.Array | float = 1.0
+    """beta of ``losses.pessimistic_q`` for the targets and the actor (1: clipped double Q)."""
 
 
 @struct.dataclass

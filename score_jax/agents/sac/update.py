@@ -51,7 +51,7 @@ def make_sac_update(
             state.critic, state, batch, mask, key_critic, hyper, policy_fn, q_fn, critic
         )
         (a_loss, logp), a_grads = jax.value_and_grad(actor_loss, has_aux=True)(
-            state.actor, state, batch, mask, key_actor, policy_fn, q_fn, critic
+            state.actor, state, batch, mask, key_actor, policy_fn, q_fn, critic, hyper.pessimism
         )
         c_updates, critic_opt_state = critic_opt.update(c_grads, state.critic_opt, state.critic)
         critic_params = optax.apply_updates(state.critic, c_updates)

@@ -178,6 +178,7 @@ def hyper(cfg: ScoreConfig, env) -> SACHyper:
         tau=f(cfg.tau),
         dropnode_prob=f(cfg.dropnode_prob),
         reward_scale=f(cfg.resolved_reward_scale(env)),
+        pessimism=f(cfg.critic_pessimism),
     )
 
 
