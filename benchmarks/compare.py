@@ -63,6 +63,7 @@ from score_jax.evaluation.stats import (  # noqa: E402
 )
 from score_jax.evaluation.transfer import TransferArgs, run_transfer  # noqa: E402
 from score_jax.run.build import build  # noqa: E402
+from score_jax.run.compile_cache import enable_compile_cache  # noqa: E402
 from score_jax.run.config import TrainConfig, to_dict  # noqa: E402
 from score_jax.run.cpu_split import split_cpu_for_seeds  # noqa: E402
 from score_jax.run.driver import train  # noqa: E402
@@ -139,6 +140,9 @@ class CompareArgs:
     jobs: int = 1
     """Rows trained side by side, each in its own process (2 on a 2-core CPU: one row compiles
     while another trains); 1 = one after another in this process."""
+    no_train: bool = False
+    """Train nothing: tabulate the rows whose result.json is already in --work-dir with these
+    settings and list the others as not run (a comparison gathered over several sessions)."""
 
 
 def rows(args: CompareArgs) -> list[tuple[str, str, dict]]:
@@ -217,8 +221,14 @@ def _cached(path: str, key: dict) -> dict | None:
     return None
 
 
+# Where a run lives is not one of its settings: leaving it out of the key lets a work directory
+# be moved, copied to another machine or committed (the CPU-scale page's runs) and still be reused.
+_PLACE_FIELDS = ("run_dir",)
+
+
 def _key(cfg: TrainConfig, **extra) -> dict:
-    return json.loads(json.dumps({"config": to_dict(cfg), **extra}, default=str))
+    config = {k: v for k, v in to_dict(cfg).items() if k not in _PLACE_FIELDS}
+    return json.loads(json.dumps({"config": config, **extra}, default=str))
 
 
 def _full_cache(cfg: TrainConfig, n_episodes: int, **extra) -> tuple[str, dict]:
@@ -455,7 +465,13 @@ def compare_env(args: CompareArgs, env: str) -> dict:
     steps, env_steps = decisions(args, env)
     subset = args.transfer_subspaces or SUBSETS[env]
     jobs = env_jobs(args, env)
-    run_jobs_side_by_side(jobs, args.eval_episodes, args.jobs, log=lambda m: print(m, flush=True))
+    missing = []
+    if args.no_train:
+        missing = [j.name for j in jobs if not is_done(j, args.eval_episodes)]
+        jobs = [j for j in jobs if j.name not in missing]
+    else:
+        log = lambda m: print(m, flush=True)
+        run_jobs_side_by_side(jobs, args.eval_episodes, args.jobs, log=log)
     results, errors, t0 = {}, {}, time.time()
     for i, job in enumerate(jobs):
         label, kind, cfg = job.label, job.kind, job.cfg
@@ -477,7 +493,7 @@ def compare_env(args: CompareArgs, env: str) -> dict:
             f"mean {shown:.2f} ({time.time() - t:.0f} s, {time.time() - t0:.0f} s in all)",
             flush=True,
         )
-    return summarise(args, env, steps, subset, results, errors, env_steps)
+    return summarise(args, env, steps, subset, results, errors, env_steps, missing)
 
 
 def summarise(
@@ -488,6 +504,7 @@ def summarise(
     results: dict,
     errors: dict,
     env_steps: int | None = None,
+    missing: list[str] | None = None,
 ) -> dict:
     table = {}
     for (label, kind), res in results.items():
@@ -513,16 +530,19 @@ def summarise(
         "transfer_subspaces": subset if args.transfer else None,
         "rows": table,
         "errors": errors,
+        "missing": list(missing or []),
     }
     os.makedirs(args.out, exist_ok=True)
     base = os.path.join(args.out, f"compare_{env}")
     json.dump(out, open(base + ".json", "w"), indent=1)
     open(base + ".md", "w").write(markdown(out, args.transfer))
-    plot(
-        {k: v["full"]["curves"] for k, v in table.items() if "full" in v},
-        base + ".png",
-        f"{env}: full sub-action spaces ({out['env_steps']} env steps = {steps} decisions)",
-    )
+    full_curves = {k: v["full"]["curves"] for k, v in table.items() if "full" in v}
+    if full_curves:  # (none with --no-train before any row has run)
+        plot(
+            full_curves,
+            base + ".png",
+            f"{env}: full sub-action spaces ({out['env_steps']} env steps = {steps} decisions)",
+        )
     if finals:
         lo = min(float(v.min()) for v in finals.values())
         hi = max(float(v.max()) for v in finals.values())
@@ -567,7 +587,14 @@ def markdown(out: dict, transfer: bool) -> str:
         seeds = ", ".join(f"{x:.1f}" for x in full.get("per_seed", []))
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {seeds} |")
     errors = "".join(f"\n- {k}: {e}" for k, e in out["errors"].items())
-    return head + "\n".join(lines) + ("\n\nFailed:" + errors if errors else "") + "\n"
+    missing = ", ".join(out.get("missing", []))
+    return (
+        head
+        + "\n".join(lines)
+        + ("\n\nFailed:" + errors if errors else "")
+        + (f"\n\nNot run yet: {missing}." if missing else "")
+        + "\n"
+    )
 
 
 def plot(curves: dict[str, list[dict]], path: str, title: str) -> None:
@@ -608,10 +635,8 @@ def plot(curves: dict[str, list[dict]], path: str, title: str) -> None:
 
 def main(args: CompareArgs) -> int:
     refuse_seed_offset(args.base)
-    if (
-        not jax.config.jax_compilation_cache_dir
-    ):  # the seeds of a row compile the same programs: compile them once
-        jax.config.update("jax_compilation_cache_dir", os.path.join(args.work_dir, "jax_cache"))
+    # the seeds and rows compile the same programs: compile them once
+    enable_compile_cache(enabled=args.base.compile_cache)
     outs = [compare_env(args, env) for env in args.envs]
     for o in outs:
         print(f"wrote {os.path.join(args.out, 'compare_' + o['env'])}.{{json,md,png}}")

@@ -123,6 +123,11 @@ class PaperArgs:
     jobs: int = 0
     """Runs and sweeps side by side, each in its own process; 0 = 2 with --quick (a small run
     is mostly compilation, on one core), else 1 (a row's seeds already use every core)."""
+    no_train: bool = False
+    """Train nothing: write the page from the runs already in --work-dir and list the others as
+    not run yet (the CPU-scale page is gathered over several sessions in the committed
+    benchmarks/results/paper_runs, kept without checkpoints). A run's robustness sweep and
+    figures that read its trained policies are still made where its checkpoints are there."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -196,6 +201,7 @@ def compare_args(args: PaperArgs, p: Plan, env: str, prior: str) -> compare.Comp
         work_dir=os.path.join(args.work_dir, f"prior-{prior}"),
         base=base,
         jobs=p.jobs,
+        no_train=args.no_train,
     )
 
 
@@ -247,11 +253,18 @@ def _saved_sweep(run_dir: str, n_seeds: int) -> dict | None:
     return None
 
 
+def has_policies(run_dir: str) -> bool:
+    """Whether ``run_dir`` holds its trained policies (the committed runs keep none)."""
+    return os.path.isdir(os.path.join(run_dir, "checkpoints"))
+
+
 def robustness_of(run_dir: str, n_seeds: int, log=lambda *a: None) -> dict:
     """The run's robustness sweep (``robustness.json``), run once and then read back."""
     saved = _saved_sweep(run_dir, n_seeds)
     if saved is not None:
         return saved
+    if not has_policies(run_dir):
+        raise FileNotFoundError(f"no robustness.json and no checkpoints in {run_dir}")
     run_sweep(restore_run(run_dir, log=lambda *a: None), n_seeds, log=lambda *a: None)
     log(f"  robustness sweep of {run_dir}")
     return json.load(open(os.path.join(run_dir, "robustness.json")))
@@ -319,7 +332,10 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
     """Every run, sweep and figure of one environment; the data results.md is written from."""
     learn_fig, transfer_fig, robust_fig = FIGURES[env]
     out = {"env": env, "env_steps": budget(args, env), "priors": {}, "figures": {}, "notes": []}
-    compare.run_jobs_side_by_side(env_jobs(args, p, env), p.eval_episodes, p.jobs, log)
+    jobs = env_jobs(args, p, env)
+    if not args.no_train:
+        compare.run_jobs_side_by_side(jobs, p.eval_episodes, p.jobs, log)
+    done = lambda label, kind, cfg: compare.is_done(compare.Job(label, kind, cfg), p.eval_episodes)
     compared = {}
     for prior in p.priors:
         cargs = compare_args(args, p, env, prior)
@@ -327,22 +343,33 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         cmp = compare.compare_env(cargs, env)
         rows = dict(cmp["rows"])
         if p.eq2_row and "score" in (p.algos or ("score",)):
-            label, row = eq2_row(cargs, env)
-            rows[label] = row
+            if args.no_train and not done(EQ2_LABEL, "full", eq2_config(cargs, env)):
+                cmp["missing"] = [*cmp.get("missing", []), f"{EQ2_LABEL} full"]
+            else:
+                label, row = eq2_row(cargs, env)
+                rows[label] = row
         compared[prior] = (cmp, rows)
     n = p.robustness_seeds
     dirs = [
         r["full"]["run_dir"] for _, rows in compared.values() for r in _full_rows(rows).values()
     ]
-    sweeps = [(f"sweep of {d}", robustness_of, (d, n)) for d in dirs if _saved_sweep(d, n) is None]
+    sweeps = [
+        (f"sweep of {d}", robustness_of, (d, n))
+        for d in dirs
+        if _saved_sweep(d, n) is None and has_policies(d)
+    ]
     if p.jobs > 1 and len(sweeps) > 1:
         log(f"{len(sweeps)} robustness sweeps, {p.jobs} side by side:")
         run_side_by_side(sweeps, p.jobs, log=log)
     for prior, (cmp, rows) in compared.items():
         robust = {}
         for label, row in _full_rows(rows).items():
+            run_dir = row["full"]["run_dir"]
+            if _saved_sweep(run_dir, n) is None and not has_policies(run_dir):
+                cmp["missing"] = [*cmp.get("missing", []), f"{label} robustness sweep"]
+                continue
             try:
-                robust[label] = robustness_of(row["full"]["run_dir"], p.robustness_seeds, log)
+                robust[label] = robustness_of(run_dir, n, log)
             except Exception as e:  # one failed sweep is reported, the page still comes out
                 out["notes"].append(f"robustness of {label} (prior {prior}) failed: {e}")
         out["priors"][prior] = {
@@ -399,10 +426,37 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         )
     if env == "greenhouse" and "SCORE" in full:
         cargs = compare_args(args, p, env, p.priors[0])
-        runs = {"SCORE, yield reward": full["SCORE"]["full"]["run_dir"]}
-        runs["SCORE, profit reward"] = profit_run(cargs, env)
-        figure("10", lambda path: setpoint_figure(runs, path, f"{tag}: setpoints"))
+        profit = profit_config(cargs, env)
+        if args.no_train and not done("SCORE (profit)", "full", profit):
+            out["notes"].append(
+                "Fig. 10 not drawn: the SCORE run with the profit reward is not run yet"
+            )
+        else:
+            runs = {"SCORE, yield reward": full["SCORE"]["full"]["run_dir"]}
+            runs["SCORE, profit reward"] = profit_run(cargs, env)
+            figure("10", lambda path: setpoint_figure(runs, path, f"{tag}: setpoints"))
     return out
+
+
+def run_origins(results: list[dict]) -> list[str]:
+    """``"<commit> (<date>[, dirty]): <n> runs"`` for the runs behind ``results``, from each run's
+    config.json (a page gathered over several sessions mixes commits; each is named)."""
+    counts: dict[str, int] = {}
+    for r in results:
+        for res in r["priors"].values():
+            for row in res["compare"]["rows"].values():
+                for part in ("full", "converge"):
+                    run_dir = (row.get(part) or {}).get("run_dir")
+                    path = os.path.join(run_dir or "", "config.json")
+                    if not run_dir or not os.path.exists(path):
+                        continue
+                    prov = json.load(open(path)).get("provenance", {})
+                    git = prov.get("git") or {}
+                    origin = f"`{str(git.get('commit', 'unknown'))[:7]}` ("
+                    origin += str(prov.get("time_utc", "unknown date"))[:10]
+                    origin += ", dirty)" if git.get("dirty") else ")"
+                    counts[origin] = counts.get(origin, 0) + 1
+    return [f"{o}: {n} runs" for o, n in sorted(counts.items())]
 
 
 def _cell(d: dict | None) -> str:
@@ -467,6 +521,7 @@ def page(
         f"{jax.devices()[0].platform}; {seconds / 60:.1f} min for this invocation "
         "(cached runs not counted again)",
         f"- Date: {datetime.date.today().isoformat()}",
+        "- Runs trained at: " + ("; ".join(run_origins(results)) or "none"),
         f"- Settings: {p.seeds} seeds per row, {p.eval_episodes} evaluation episodes, "
         f"{p.robustness_seeds} failure draws per robustness setting, prior "
         + " and ".join(p.priors)
@@ -499,6 +554,15 @@ def page(
                 "### Claims",
                 "",
                 claims_lib.claims_markdown(res["claims"]),
+            ]
+            if cmp.get("missing"):
+                lines += [
+                    "",
+                    f"**Partial:** {len(cmp['missing'])} runs or sweeps of this setting are not "
+                    "run yet, so these verdicts compare only the rows below and may change. Not "
+                    "run yet: " + ", ".join(cmp["missing"]) + ".",
+                ]
+            lines += [
                 "",
                 "### Tables",
                 "",

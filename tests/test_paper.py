@@ -2,8 +2,10 @@
 the robustness sweeps, the figures, the tables and the claims reach results.md. (SCORE alone:
 the figures' functions, Figs. 11 and 12 included, have their own tests in test_paper_figures.)"""
 
+import dataclasses
 import json
 import os
+import shutil
 
 from benchmarks import paper
 from score_jax.run.config import TrainConfig
@@ -57,6 +59,25 @@ def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path):
     assert len(runs) == 3  # SCORE on the full space, its subset run and the transfer from it
     assert paper.main(args) == 0
     assert [p.stat().st_mtime for p in runs] == stamps
+    # a work directory moved elsewhere without its checkpoints (as the committed CPU-scale runs
+    # are kept) is still reused: where a run lives is not part of its settings
+    moved = tmp_path / "moved"
+    shutil.move(str(work), str(moved))
+    for heavy in [*moved.rglob("checkpoints"), *moved.rglob("best")]:
+        shutil.rmtree(heavy)
+    kept = sorted(moved.rglob("result.json"))
+    stamps = [p.stat().st_mtime for p in kept]
+    assert paper.main(dataclasses.replace(args, work_dir=str(moved))) == 0
+    assert [p.stat().st_mtime for p in kept] == stamps
+    assert not list(moved.rglob("checkpoints"))
+    # --no-train writes the page from what is there and names what is not (a page gathered over
+    # several sessions): ISAC's rows are listed as not run, and nothing is trained
+    partial = dataclasses.replace(args, work_dir=str(moved), algos=("score", "isac"), no_train=True)
+    assert paper.main(partial) == 0
+    md = (out / "results.md").read_text()
+    assert "**Partial:**" in md and "ISAC full" in md and "ISAC transfer" in md, md
+    assert "- Runs trained at: `" in md
+    assert sorted(moved.rglob("result.json")) == kept
 
 
 def test_quick_base_caps_asrl_and_checkpoints_unless_base_sets_them():
