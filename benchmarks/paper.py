@@ -8,11 +8,12 @@ For each environment and each setting of the default-centred action prior (``--p
 or both; the prior is one switch, ``TrainConfig.default_prior``, for every algorithm), it runs
 ``benchmarks/compare.py``'s comparison with transfer (every algorithm, the SCORE ablations, the
 transfer variants of the fixed-width baselines, all on the same environment-step budget and
-seeds, ``--num-seeds`` K seeds in one program per row), then the robustness sweep of every
-full-space run, and, on the greenhouse, a SCORE run with the profit reward for Fig. 10. Every
-run and sweep is cached in ``--work-dir`` (a run whose ``result.json`` or ``robustness.json``
-exists is reused), so a killed invocation continues where it stopped; compiled programs go to
-the persistent compilation cache.
+seeds, ``--num-seeds`` K seeds in one program per row), each full-space run followed at once
+by its robustness sweep, and, on the greenhouse, a SCORE run with the profit reward for Fig. 10.
+Every run and sweep is cached in ``--work-dir`` (a run whose ``result.json`` or
+``robustness.json`` exists is reused), so a killed invocation continues where it stopped;
+compiled programs go to the persistent compilation cache. ``--only NAME ...`` trains a few of
+the runs and ``--no-train`` none: the CPU-scale page is gathered over several sessions.
 
 It writes ``<out>/results.md`` and its figures in ``<out>/results/``:
 
@@ -77,6 +78,7 @@ QUICK_ASRL_STEPS = 300  # HVAE steps per SCORE run with --quick (ASRL would domi
 # costs about as much as a hundred decisions of a quick run)
 QUICK_CHECKPOINT_EVERY = 1000
 EQ2_LABEL = "ASRL(eq.2)"
+PROFIT_LABEL = "SCORE (profit)"
 FIGURE_DIR = "results"  # next to results.md, which links its figures as results/<file>
 
 
@@ -128,6 +130,10 @@ class PaperArgs:
     not run yet (the CPU-scale page is gathered over several sessions in the committed
     benchmarks/results/paper_runs, kept without checkpoints). A run's robustness sweep and
     figures that read its trained policies are still made where its checkpoints are there."""
+    only: tuple[str, ...] = ()
+    """Train only these runs (names as in the progress lines: "SCORE full", "ISAC transfer",
+    "SCORE (profit) full", ...), each swept after training, then write the page as with
+    --no-train: the CPU-scale page's runs, a few per session. Empty = every run."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,6 +186,11 @@ def quick_base(args: PaperArgs) -> TrainConfig:
     return dataclasses.replace(base, score=score)
 
 
+def trains_all(args: PaperArgs) -> bool:
+    """Whether every missing run is trained (neither --no-train nor --only)."""
+    return not args.no_train and not args.only
+
+
 def with_prior(base: TrainConfig, on: bool) -> TrainConfig:
     """``base`` with the default-centred action prior on or off for every algorithm."""
     return dataclasses.replace(base, default_prior=on)
@@ -201,7 +212,7 @@ def compare_args(args: PaperArgs, p: Plan, env: str, prior: str) -> compare.Comp
         work_dir=os.path.join(args.work_dir, f"prior-{prior}"),
         base=base,
         jobs=p.jobs,
-        no_train=args.no_train,
+        no_train=not trains_all(args),
     )
 
 
@@ -270,6 +281,55 @@ def robustness_of(run_dir: str, n_seeds: int, log=lambda *a: None) -> dict:
     return json.load(open(os.path.join(run_dir, "robustness.json")))
 
 
+def swept(job: compare.Job) -> bool:
+    """Whether ``job`` is a full-space run whose robustness sweep the page shows."""
+    return job.kind == "full" and job.label != PROFIT_LABEL
+
+
+def needs_retraining(job: compare.Job, n_seeds: int, n_episodes: int) -> bool:
+    """A swept run whose result is there but whose sweep and trained policies are not (a
+    committed run, kept without checkpoints, from before its sweep was run)."""
+    run_dir = job.cfg.run_dir
+    return (
+        swept(job)
+        and compare.is_done(job, n_episodes)
+        and _saved_sweep(run_dir, n_seeds) is None
+        and not has_policies(run_dir)
+    )
+
+
+def train_and_sweep(job: compare.Job, n_episodes: int, n_seeds: int) -> None:
+    """Train ``job`` (its result.json reused when present), then, for a swept run, its
+    robustness sweep at once, while its trained policies are on this machine: the committed
+    store keeps no checkpoints, so a sweep left for later could not be run in another session.
+
+    A run that ``needs_retraining`` is trained again first, with the same settings and seeds:
+    on the same kind of CPU that gives the same per-seed returns, on another kind (other vector
+    instructions, recorded in config.json's provenance) other draws of the same distribution;
+    either way its result.json is rewritten by the run its sweep comes from."""
+    if needs_retraining(job, n_seeds, n_episodes):
+        os.remove(os.path.join(job.cfg.run_dir, "result.json"))
+    compare.run_job(job, n_episodes)
+    if swept(job):
+        robustness_of(job.cfg.run_dir, n_seeds)
+
+
+def train_all(jobs: list[compare.Job], p: Plan, log) -> None:
+    """Every job not done yet (or that ``needs_retraining``), each followed by its sweep,
+    ``p.jobs`` side by side, the likely longest first."""
+    n, episodes = p.robustness_seeds, p.eval_episodes
+    pending = [
+        j
+        for j in compare.cost_order(jobs)
+        if not compare.is_done(j, episodes) or needs_retraining(j, n, episodes)
+    ]
+    if not pending:
+        return
+    log(f"training {len(pending)} runs (each swept after training), {p.jobs} side by side:")
+    tasks = [(j.name, train_and_sweep, (j, episodes, n)) for j in pending]
+    run_side_by_side(tasks, p.jobs, log=log)
+
+
 def env_jobs(args: PaperArgs, p: Plan, env: str) -> list[compare.Job]:
     """Every run of ``env`` (each prior's comparison, the eq. 2 row, the profit run), the
     likely longest first."""
@@ -281,7 +341,7 @@ def env_jobs(args: PaperArgs, p: Plan, env: str) -> list[compare.Job]:
             if p.eq2_row:
                 jobs.append(compare.Job(EQ2_LABEL, "full", eq2_config(cargs, env)))
             if env == "greenhouse" and prior == p.priors[0]:
-                jobs.append(compare.Job("SCORE (profit)", "full", profit_config(cargs, env)))
+                jobs.append(compare.Job(PROFIT_LABEL, "full", profit_config(cargs, env)))
     return compare.cost_order(jobs)
 
 
@@ -333,8 +393,10 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
     learn_fig, transfer_fig, robust_fig = FIGURES[env]
     out = {"env": env, "env_steps": budget(args, env), "priors": {}, "figures": {}, "notes": []}
     jobs = env_jobs(args, p, env)
+    if args.only:
+        jobs = [j for j in jobs if j.name in args.only]
     if not args.no_train:
-        compare.run_jobs_side_by_side(jobs, p.eval_episodes, p.jobs, log)
+        train_all(jobs, p, log)
     done = lambda label, kind, cfg: compare.is_done(compare.Job(label, kind, cfg), p.eval_episodes)
     compared = {}
     for prior in p.priors:
@@ -343,7 +405,7 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         cmp = compare.compare_env(cargs, env)
         rows = dict(cmp["rows"])
         if p.eq2_row and "score" in (p.algos or ("score",)):
-            if args.no_train and not done(EQ2_LABEL, "full", eq2_config(cargs, env)):
+            if not trains_all(args) and not done(EQ2_LABEL, "full", eq2_config(cargs, env)):
                 cmp["missing"] = [*cmp.get("missing", []), f"{EQ2_LABEL} full"]
             else:
                 label, row = eq2_row(cargs, env)
@@ -427,7 +489,7 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
     if env == "greenhouse" and "SCORE" in full:
         cargs = compare_args(args, p, env, p.priors[0])
         profit = profit_config(cargs, env)
-        if args.no_train and not done("SCORE (profit)", "full", profit):
+        if not trains_all(args) and not done(PROFIT_LABEL, "full", profit):
             out["notes"].append(
                 "Fig. 10 not drawn: the SCORE run with the profit reward is not run yet"
             )
@@ -580,10 +642,24 @@ def page(
     return "\n".join(lines) + "\n"
 
 
+def check_only(args: PaperArgs, p: Plan) -> None:
+    """An --only name that is not one of the plan's runs is an error that lists them."""
+    if not args.only:
+        return
+    names = {j.name for env in p.envs for j in env_jobs(args, p, env)}
+    unknown = [n for n in args.only if n not in names]
+    if unknown:
+        raise SystemExit(
+            f"error: --only {', '.join(map(repr, unknown))}: not a run of this plan; "
+            f"the runs are: {', '.join(sorted(names))}"
+        )
+
+
 def main(args: PaperArgs) -> int:
     compare.refuse_seed_offset(args.base)
     enable_compile_cache()
     p = plan(args)
+    check_only(args, p)
     figdir = os.path.join(args.out, FIGURE_DIR)
     os.makedirs(figdir, exist_ok=True)
     t0 = time.time()

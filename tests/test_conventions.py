@@ -22,6 +22,7 @@ from score_jax.cli import transfer as transfer_cli
 from score_jax.core.spaces import CompositeSpace
 from score_jax.evaluation.transfer import TransferArgs
 from score_jax.run import compile_cache
+from score_jax.run import provenance as prov_lib
 from score_jax.run.config import TrainConfig, resolve
 from score_jax.run.provenance import git_info, provenance
 from score_jax.run.summary import announce, header_lines
@@ -188,6 +189,7 @@ def test_provenance_records_versions_devices_and_the_commit():
     assert p["backend"] == jax.default_backend() and p["device_count"] == jax.device_count()
     assert p["device_kinds"] == sorted({d.device_kind for d in jax.devices()})
     assert p["python"] and p["platform"] and p["time_utc"]
+    assert set(p["cpu"]["vector_flags"]) <= set(prov_lib.VECTOR_FLAGS)
     head = subprocess.run(
         ["git", "-C", ROOT, "rev-parse", "HEAD"], capture_output=True, text=True, check=False
     )
@@ -196,6 +198,20 @@ def test_provenance_records_versions_devices_and_the_commit():
         assert isinstance(p["git"]["dirty"], bool)
     else:
         assert p["git"] is None
+
+
+def test_cpu_info_reads_the_model_and_the_vector_flags(tmp_path):
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text(
+        "processor\t: 0\nmodel name\t: AMD EPYC 9B14\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f\n"
+        "processor\t: 1\nmodel name\t: AMD EPYC 9B14\nflags\t\t: fpu sse4_2 avx avx2 fma avx512f\n"
+    )
+    info = prov_lib.cpu_info(str(cpuinfo))
+    assert info == {
+        "model": "AMD EPYC 9B14",
+        "vector_flags": ["sse4_2", "avx", "avx2", "fma", "avx512f"],
+    }
+    assert prov_lib.cpu_info(str(tmp_path / "absent"))["vector_flags"] == []
 
 
 def test_git_info_is_none_outside_a_checkout(monkeypatch, tmp_path):

@@ -7,6 +7,8 @@ import json
 import os
 import shutil
 
+import pytest
+
 from benchmarks import paper
 from score_jax.run.config import TrainConfig
 from tests.tiny import TINY_OFF_POLICY, TINY_SCORE
@@ -70,6 +72,14 @@ def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path):
     assert paper.main(dataclasses.replace(args, work_dir=str(moved))) == 0
     assert [p.stat().st_mtime for p in kept] == stamps
     assert not list(moved.rglob("checkpoints"))
+    # a run kept without its sweep and its checkpoints is trained again, then swept at once; the
+    # same settings and seeds give the same result
+    full = next(p.parent for p in kept if p.parent.parent.name == "score")
+    before = json.load(open(full / "result.json"))
+    os.remove(full / "robustness.json")
+    assert paper.main(dataclasses.replace(args, work_dir=str(moved))) == 0
+    assert (full / "robustness.json").exists() and (full / "checkpoints").is_dir()
+    assert json.load(open(full / "result.json"))["returns"] == before["returns"]
     # --no-train writes the page from what is there and names what is not (a page gathered over
     # several sessions): ISAC's rows are listed as not run, and nothing is trained
     partial = dataclasses.replace(args, work_dir=str(moved), algos=("score", "isac"), no_train=True)
@@ -78,6 +88,17 @@ def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path):
     assert "**Partial:**" in md and "ISAC full" in md and "ISAC transfer" in md, md
     assert "- Runs trained at: `" in md
     assert sorted(moved.rglob("result.json")) == kept
+    # --only trains the runs it names (each swept at once) and writes the same partial page
+    with pytest.raises(SystemExit, match="the runs are: .*ISAC full"):
+        paper.main(dataclasses.replace(partial, no_train=False, only=("ISAC ful",)))
+    assert paper.main(dataclasses.replace(partial, no_train=False, only=("ISAC full",))) == 0
+    isac = [p for p in moved.rglob("result.json") if p not in kept]
+    assert [p.parent.parent.name for p in isac] == ["isac"]
+    assert (isac[0].parent / "robustness.json").exists()
+    partial_line = next(
+        x for x in (out / "results.md").read_text().split("\n") if "**Partial:**" in x
+    )
+    assert "ISAC transfer" in partial_line and "ISAC full" not in partial_line, partial_line
 
 
 def test_quick_base_caps_asrl_and_checkpoints_unless_base_sets_them():

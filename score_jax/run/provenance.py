@@ -76,6 +76,33 @@ def git_info() -> dict | None:
     return {"commit": commit, "dirty": bool(status)}
 
 
+# CPU features that change the machine code XLA emits for the host (vector width, fused
+# multiply-add), hence the rounding of a run's floats: RL training amplifies a last-bit
+# difference, so the same settings and seeds give other per-seed returns on another CPU kind.
+VECTOR_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512_bf16", "amx_tile")
+
+
+def cpu_info(cpuinfo: str = "/proc/cpuinfo") -> dict:
+    """``{"model", "vector_flags"}`` of this machine's CPU from Linux's ``/proc/cpuinfo``
+    (elsewhere: ``platform.processor()`` and no flags)."""
+    model, flags = None, set()
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and model is None:
+                    model = value.strip()
+                elif key.strip() == "flags":
+                    flags = set(value.split())
+                    break
+    except OSError:
+        pass
+    return {
+        "model": model or platform.processor() or None,
+        "vector_flags": [f for f in VECTOR_FLAGS if f in flags],
+    }
+
+
 def device_info() -> dict:
     """The JAX backend, device count and device kinds of this process."""
     devices = jax.devices()
@@ -95,6 +122,7 @@ def provenance() -> dict:
         "packages": package_versions(),
         "python": sys.version.split()[0],
         "platform": platform.platform(),
+        "cpu": cpu_info(),
         **device_info(),
         "git": git_info(),
     }
