@@ -272,14 +272,15 @@ def run_full(cfg: TrainConfig, n_episodes: int, report=None, log=None) -> dict:
     return result
 
 
-def run_transfer_pair(cfg: TrainConfig, target: str, steps: int, n_episodes: int) -> dict:
+def run_transfer_pair(cfg: TrainConfig, target: str, steps: int, n_episodes: int, log=None) -> dict:
     """Train ``cfg`` (a subset run), then fine-tune it on the full space with transfer.py into
-    ``target``: the Initial and Converge returns and the fine-tuning curve."""
+    ``target``: the Initial and Converge returns and the fine-tuning curve. ``log``: where both
+    runs' own lines go (as in ``run_full``)."""
     path, key = _transfer_cache(cfg, target, steps, n_episodes)
     cached = _cached(path, key)
     if cached is not None:
         return cached
-    run_full(cfg, n_episodes)
+    run_full(cfg, n_episodes, log=log)
     _fresh(target)
     res = run_transfer(
         TransferArgs(
@@ -289,7 +290,7 @@ def run_transfer_pair(cfg: TrainConfig, target: str, steps: int, n_episodes: int
             eval_episodes=n_episodes,
             quiet=True,
         ),
-        log=lambda *a: None,
+        log=log or (lambda *a: None),
     )
     result = {
         "key": key,
@@ -398,11 +399,19 @@ class Job:
         return f"{self.label} {self.kind}"
 
 
-def run_job(job: Job, n_episodes: int) -> dict:
-    """``run_full`` or ``run_transfer_pair`` of ``job`` (its result.json reused when present)."""
+def run_job(job: Job, n_episodes: int, log=None) -> dict:
+    """``run_full`` or ``run_transfer_pair`` of ``job`` (its result.json reused when present);
+    ``log``: where the runs' own lines go (their evaluations), default nowhere."""
     if job.kind == "full":
-        return run_full(job.cfg, n_episodes)
-    return run_transfer_pair(job.cfg, job.target, job.steps, n_episodes)
+        return run_full(job.cfg, n_episodes, log=log)
+    return run_transfer_pair(job.cfg, job.target, job.steps, n_episodes, log=log)
+
+
+def job_log(name: str):
+    """A ``log`` for ``run_job`` that prints a run's lines under its name, at once: a run of
+    many minutes shows its evaluations as they come (side by side, each process prints its
+    own)."""
+    return lambda message: print(f"    {name}: {message}", flush=True)
 
 
 def cost_order(jobs: list[Job]) -> list[Job]:

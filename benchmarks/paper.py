@@ -306,10 +306,11 @@ def train_and_sweep(job: compare.Job, n_episodes: int, n_seeds: int) -> None:
     A run that ``needs_retraining`` is trained again first, with the same settings and seeds:
     on the same kind of CPU that gives the same per-seed returns, on another kind (other vector
     instructions, recorded in config.json's provenance) other draws of the same distribution;
-    either way its result.json is rewritten by the run its sweep comes from."""
+    either way its result.json is rewritten by the run its sweep comes from. The runs' own
+    lines (their evaluations) are printed under ``job.name`` as they come."""
     if needs_retraining(job, n_seeds, n_episodes):
         os.remove(os.path.join(job.cfg.run_dir, "result.json"))
-    compare.run_job(job, n_episodes)
+    compare.run_job(job, n_episodes, log=compare.job_log(job.name))
     if swept(job):
         robustness_of(job.cfg.run_dir, n_seeds)
 

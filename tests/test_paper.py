@@ -14,7 +14,7 @@ from score_jax.run.config import TrainConfig
 from tests.tiny import TINY_OFF_POLICY, TINY_SCORE
 
 
-def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path):
+def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path, capfd):
     out, work = tmp_path / "out", tmp_path / "work"
     args = paper.PaperArgs(
         quick=True,
@@ -34,6 +34,9 @@ def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path):
         ),
     )
     assert paper.main(args) == 0
+    # each run's evaluations are printed under its name as they come (a run takes minutes)
+    printed = capfd.readouterr().out  # fd level: side by side, the runs print from children
+    assert "    SCORE full: " in printed and "evaluation mean" in printed, printed
     md = (out / "results.md").read_text()
     for text in (
         "### Claims",
