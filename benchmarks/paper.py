@@ -444,8 +444,20 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
     cmp, robust, rows = head["compare"], head["robustness"], head["compare"]["rows"]
     tag = f"{env}, prior {p.priors[0]}"
 
-    def figure(name: str, draw) -> None:
+    def figure(name: str, draw, policies_of: list[str] = ()) -> None:
+        """Draw Fig. ``name``; one drawn from trained policies (``policies_of``: their run
+        directories) is kept from an earlier session while those runs are unchanged and their
+        policies are not on this machine (the committed store keeps none)."""
         path = os.path.join(figdir, f"fig{name}_{env}.png")
+        if policies_of and not all(has_policies(d) for d in policies_of):
+            drawn_at = kept_figure(path, policies_of)
+            if drawn_at:
+                out["figures"][name] = os.path.basename(path)
+                out["notes"].append(
+                    f"Fig. {name} is the one drawn {drawn_at} from the same runs (unchanged "
+                    "since; their trained policies, which it reads, are not kept in the store)"
+                )
+                return
         try:
             why = draw(path)
         except Exception as e:  # a figure that cannot be drawn is named on the page
@@ -454,6 +466,8 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
             out["notes"].append(f"Fig. {name} not drawn: {why}")
         else:
             out["figures"][name] = os.path.basename(path)
+            if policies_of:
+                record_figure_inputs(path, policies_of)
 
     src = os.path.join(compare_args(args, p, env, p.priors[0]).out, f"compare_{env}.png")
     figure(learn_fig, lambda path: shutil.copyfile(src, path) and None)
@@ -479,13 +493,11 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         )
     full = _full_rows(rows)
     if "SCORE" in full and "AL+HN" in full:
+        runs = {k: full[k]["full"]["run_dir"] for k in ("AL+HN", "SCORE")}
         figure(
             "12",
-            lambda path: embedding_figure(
-                {k: full[k]["full"]["run_dir"] for k in ("AL+HN", "SCORE")},
-                path,
-                f"{tag}: agent embeddings (t-SNE)",
-            ),
+            lambda path: embedding_figure(runs, path, f"{tag}: agent embeddings (t-SNE)"),
+            list(runs.values()),
         )
     if env == "greenhouse" and "SCORE" in full:
         cargs = compare_args(args, p, env, p.priors[0])
@@ -497,8 +509,47 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         else:
             runs = {"SCORE, yield reward": full["SCORE"]["full"]["run_dir"]}
             runs["SCORE, profit reward"] = profit_run(cargs, env)
-            figure("10", lambda path: setpoint_figure(runs, path, f"{tag}: setpoints"))
+            figure(
+                "10",
+                lambda path: setpoint_figure(runs, path, f"{tag}: setpoints"),
+                list(runs.values()),
+            )
     return out
+
+
+def _figure_inputs(run_dirs: list[str]) -> list[dict]:
+    """What a figure drawn from trained policies depends on: each run's settings (its result
+    key) and final per-seed returns. A retraining that reproduces them (same settings, seeds
+    and CPU kind) leaves them unchanged; any other run changes them."""
+    inputs = []
+    for d in run_dirs:
+        saved = json.load(open(os.path.join(d, "result.json")))
+        inputs.append({"key": saved["key"], "returns": saved["returns"]})
+    return inputs
+
+
+def _inputs_path(figure_path: str) -> str:
+    return os.path.splitext(figure_path)[0] + ".inputs.json"
+
+
+def record_figure_inputs(figure_path: str, run_dirs: list[str]) -> None:
+    """Beside a figure drawn from ``run_dirs``' policies: what it was drawn from, and when."""
+    record = {"drawn": time.strftime("%Y-%m-%d"), "runs": _figure_inputs(run_dirs)}
+    json.dump(record, open(_inputs_path(figure_path), "w"), indent=1)
+
+
+def kept_figure(figure_path: str, run_dirs: list[str]) -> str | None:
+    """``"on <date>"`` when ``figure_path`` exists and was drawn from ``run_dirs`` as they are
+    now (``record_figure_inputs``); else None (not drawn yet, or a run changed since)."""
+    record_path = _inputs_path(figure_path)
+    if not (os.path.exists(figure_path) and os.path.exists(record_path)):
+        return None
+    try:
+        now = _figure_inputs(run_dirs)
+    except (OSError, KeyError, ValueError):
+        return None
+    record = json.load(open(record_path))
+    return f"on {record['drawn']}" if record["runs"] == now else None
 
 
 def run_origins(results: list[dict]) -> list[str]:

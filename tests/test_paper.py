@@ -122,3 +122,31 @@ def test_page_names_the_commit_it_was_given():
     assert "- Commit: `abc123`\n" in md
     md = paper.page(args, p, [], 60.0, {"commit": "abc123", "dirty": True})
     assert "- Commit: `abc123` (dirty)\n" in md
+
+
+def test_a_figure_from_policies_is_kept_only_while_its_runs_are_unchanged(tmp_path):
+    """Figs. 10 and 12 read trained policies, which the committed store does not keep: a later
+    page keeps the figure drawn from the same runs, and not once a run has changed."""
+    runs = []
+    for name in ("a", "b"):
+        d = tmp_path / name
+        d.mkdir()
+        json.dump(
+            {"key": {"algo": name}, "returns": [1.0, 2.0], "wall_s": 3.0},
+            open(d / "result.json", "w"),
+        )
+        runs.append(str(d))
+    fig = tmp_path / "fig10_greenhouse.png"
+    assert paper.kept_figure(str(fig), runs) is None  # never drawn
+    fig.write_bytes(b"png")
+    assert paper.kept_figure(str(fig), runs) is None  # drawn, but from what is not recorded
+    paper.record_figure_inputs(str(fig), runs)
+    assert paper.kept_figure(str(fig), runs).startswith("on ")
+    # a retraining that reproduces the returns (wall time aside) leaves the figure standing
+    saved = json.load(open(tmp_path / "a" / "result.json"))
+    json.dump({**saved, "wall_s": 9.0}, open(tmp_path / "a" / "result.json", "w"))
+    assert paper.kept_figure(str(fig), runs) is not None
+    json.dump({**saved, "returns": [1.0, 2.5]}, open(tmp_path / "a" / "result.json", "w"))
+    assert paper.kept_figure(str(fig), runs) is None
+    os.remove(tmp_path / "b" / "result.json")
+    assert paper.kept_figure(str(fig), runs) is None
