@@ -225,3 +225,22 @@ def test_transfer_curves_from_a_comparison_render(tmp_path):
     path = tmp_path / "fig6b.png"
     pf.plot_transfer_curves(curves, str(path), initial=initial)
     assert_png(path)
+
+
+def test_across_agents_share_separates_agent_from_state_spread():
+    """Fig. 12's panel titles: 0 when the agents of a state coincide, 1 when only the agent
+    matters; a GAT layer whose attention scores keep their sign gives every receiver the same
+    weights (static attention on a complete graph), hence the same output."""
+    from score_jax.networks.gat import GATWeights, gat_layer
+
+    rng = np.random.default_rng(0)
+    per_state = rng.normal(size=(50, 1, 8))
+    per_agent = rng.normal(size=(1, 4, 8))
+    assert pf.across_agents_share(np.repeat(per_state, 4, axis=1)) == 0.0
+    assert pf.across_agents_share(np.repeat(per_agent, 50, axis=0)) == pytest.approx(1.0)
+    assert 0.2 < pf.across_agents_share(per_state + per_agent) < 0.8
+    x = jnp.asarray(np.abs(rng.normal(size=(4, 8))))  # positive features, weights, attention:
+    w = GATWeights(jnp.eye(8), jnp.ones(16))  # every score a_i + a_j > 0, LeakyReLU linear
+    out, alpha = gat_layer(w, x, jnp.ones(4, bool))
+    np.testing.assert_allclose(alpha, np.repeat(alpha[:1], 4, axis=0), rtol=1e-6)
+    np.testing.assert_allclose(out, np.repeat(out[:1], 4, axis=0), rtol=1e-6)  # one output

@@ -335,6 +335,21 @@ def tsne_2d(x: np.ndarray, seed: int = 0, perplexity: float = 30.0) -> np.ndarra
 EMBEDDING_STAGES = {"p_w": "after p_w (e_i)", "gat": "after the GAT (e_i^(m))"}
 
 
+def across_agents_share(x: np.ndarray) -> float:
+    """Share of the spread of embeddings ``x [N, n_agents, d]`` that lies between the agents of
+    one state: the mean over states of the variance across agents, over the total variance
+    (both summed over the d features). 0 when every agent of a state has the same embedding,
+    as after a GAT layer whose attention weights ``alpha_ij`` do not depend on the receiver i
+    (GAT's static attention on a complete graph, Brody et al. 2022: whenever
+    ``a^T [theta x_i || theta x_j]`` keeps its sign over j, LeakyReLU is linear there and the
+    receiver's term cancels in the softmax); 1 when the state does not move them at all."""
+    x = np.asarray(x, np.float64)
+    total = float(x.reshape(-1, x.shape[-1]).var(axis=0).sum())
+    if total == 0.0:
+        return 0.0
+    return float(x.var(axis=1).mean(axis=0).sum() / total)
+
+
 def plot_agent_embeddings(
     embeddings: Mapping[str, Mapping[str, np.ndarray]],
     subspace_names: Sequence[str],
@@ -346,7 +361,7 @@ def plot_agent_embeddings(
     """Fig. 12: one row per variant (``embeddings``: ``{label: collect_agent_embeddings(...)}``,
     e.g. ``{"AL+HN": ..., "SCORE": ...}``), one column per stage (after p_w, after the GAT);
     each panel is a t-SNE (``tsne_2d``, of that panel's N x n_agents points) coloured by
-    sub-space (``subspace_names[i]`` for agent i)."""
+    sub-space (``subspace_names[i]`` for agent i), titled with ``across_agents_share``."""
     if not embeddings:
         raise ValueError("no embeddings to plot")
     names = list(subspace_names)
@@ -362,7 +377,8 @@ def plot_agent_embeddings(
             pts = tsne_2d(x.reshape(-1, x.shape[-1]), seed, perplexity).reshape(*x.shape[:2], 2)
             for colour, (i, name) in zip(_colours(len(names)), enumerate(names), strict=True):
                 ax.scatter(pts[:, i, 0], pts[:, i, 1], s=8, alpha=0.6, color=colour, label=name)
-            ax.set_title(f"{label}: {stage_title}")
+            share = across_agents_share(x)
+            ax.set_title(f"{label}: {stage_title}\n{share:.0%} of the spread across agents")
             ax.set_xticks([])
             ax.set_yticks([])
     axes[0, -1].legend(
