@@ -407,11 +407,10 @@ def run_job(job: Job, n_episodes: int, log=None) -> dict:
     return run_transfer_pair(job.cfg, job.target, job.steps, n_episodes, log=log)
 
 
-def job_log(name: str):
-    """A ``log`` for ``run_job`` that prints a run's lines under its name, at once: a run of
-    many minutes shows its evaluations as they come (side by side, each process prints its
-    own)."""
-    return lambda message: print(f"    {name}: {message}", flush=True)
+def run_job_printing(job: Job, n_episodes: int) -> dict:
+    """``run_job`` with the runs' own lines printed under ``job.name`` at once: a run of many
+    minutes shows its evaluations as they come (side by side, each process prints its own)."""
+    return run_job(job, n_episodes, log=lambda m: print(f"    {job.name}: {m}", flush=True))
 
 
 def cost_order(jobs: list[Job]) -> list[Job]:
@@ -457,7 +456,7 @@ def run_jobs_side_by_side(jobs: list[Job], n_episodes: int, workers: int, log=pr
     pending = [j for j in cost_order(jobs) if not is_done(j, n_episodes)]
     if workers > 1 and len(pending) > 1:
         log(f"training {len(pending)} runs, {workers} side by side:")
-        tasks = [(j.name, run_job, (j, n_episodes)) for j in pending]
+        tasks = [(j.name, run_job_printing, (j, n_episodes)) for j in pending]
         run_side_by_side(tasks, workers, log=log)
 
 

@@ -43,6 +43,7 @@ import platform
 import shutil
 import sys
 import time
+from collections.abc import Sequence
 from typing import Literal
 
 import jax
@@ -310,7 +311,7 @@ def train_and_sweep(job: compare.Job, n_episodes: int, n_seeds: int) -> None:
     lines (their evaluations) are printed under ``job.name`` as they come."""
     if needs_retraining(job, n_seeds, n_episodes):
         os.remove(os.path.join(job.cfg.run_dir, "result.json"))
-    compare.run_job(job, n_episodes, log=compare.job_log(job.name))
+    compare.run_job_printing(job, n_episodes)
     if swept(job):
         robustness_of(job.cfg.run_dir, n_seeds)
 
@@ -444,7 +445,7 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
     cmp, robust, rows = head["compare"], head["robustness"], head["compare"]["rows"]
     tag = f"{env}, prior {p.priors[0]}"
 
-    def figure(name: str, draw, policies_of: list[str] = ()) -> None:
+    def figure(name: str, draw, policies_of: tuple[str, ...] = ()) -> None:
         """Draw Fig. ``name``; one drawn from trained policies (``policies_of``: their run
         directories) is kept from an earlier session while those runs are unchanged and their
         policies are not on this machine (the committed store keeps none)."""
@@ -497,7 +498,7 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
         figure(
             "12",
             lambda path: embedding_figure(runs, path, f"{tag}: agent embeddings (t-SNE)"),
-            list(runs.values()),
+            tuple(runs.values()),
         )
     if env == "greenhouse" and "SCORE" in full:
         cargs = compare_args(args, p, env, p.priors[0])
@@ -512,12 +513,12 @@ def env_results(args: PaperArgs, p: Plan, env: str, figdir: str, log) -> dict:
             figure(
                 "10",
                 lambda path: setpoint_figure(runs, path, f"{tag}: setpoints"),
-                list(runs.values()),
+                tuple(runs.values()),
             )
     return out
 
 
-def _figure_inputs(run_dirs: list[str]) -> list[dict]:
+def _figure_inputs(run_dirs: Sequence[str]) -> list[dict]:
     """What a figure drawn from trained policies depends on: each run's settings (its result
     key) and final per-seed returns. A retraining that reproduces them (same settings, seeds
     and CPU kind) leaves them unchanged; any other run changes them."""
@@ -532,13 +533,13 @@ def _inputs_path(figure_path: str) -> str:
     return os.path.splitext(figure_path)[0] + ".inputs.json"
 
 
-def record_figure_inputs(figure_path: str, run_dirs: list[str]) -> None:
+def record_figure_inputs(figure_path: str, run_dirs: Sequence[str]) -> None:
     """Beside a figure drawn from ``run_dirs``' policies: what it was drawn from, and when."""
     record = {"drawn": time.strftime("%Y-%m-%d"), "runs": _figure_inputs(run_dirs)}
     json.dump(record, open(_inputs_path(figure_path), "w"), indent=1)
 
 
-def kept_figure(figure_path: str, run_dirs: list[str]) -> str | None:
+def kept_figure(figure_path: str, run_dirs: Sequence[str]) -> str | None:
     """``"on <date>"`` when ``figure_path`` exists and was drawn from ``run_dirs`` as they are
     now (``record_figure_inputs``); else None (not drawn yet, or a run changed since)."""
     record_path = _inputs_path(figure_path)
