@@ -1,6 +1,7 @@
 """The masked GAT and the graph critic: invariances, masking, switches, frozen HVAE."""
 
 import dataclasses
+import itertools
 
 import jax
 import jax.numpy as jnp
@@ -63,7 +64,7 @@ ALL_CONFIGS = [
     for agg in ("attention", "mean", "sum")
     for hyper in (True, False)
     for asrl in (True, False)
-]
+] + [dataclasses.replace(CCFG, self_term=True)]
 
 
 # --- gat_layer ------------------------------------------------------------------------
@@ -90,6 +91,14 @@ def test_gat_layer_matches_hand_computation():
     out_sum, _ = gat_layer(w, x, mask, "sum")
     s = h[:2].sum(0)
     np.testing.assert_allclose(out_sum[0], np.where(s > 0, s, np.expm1(s)), rtol=1e-5)
+    # the self term: x'_i = ELU(theta x_i + sum_j alpha_ij theta x_j), same weights alpha
+    out_self, alpha_self = gat_layer(w, x, mask, "attention", self_term=True)
+    expect_self = expect_alpha @ h[:2] + h[:2]
+    np.testing.assert_allclose(alpha_self, alpha)
+    np.testing.assert_allclose(
+        out_self[:2], np.where(expect_self > 0, expect_self, np.expm1(expect_self)), rtol=1e-5
+    )
+    assert np.all(np.asarray(out_self)[2] == 0)
 
 
 def test_gat_layer_masked_inputs_never_leak_even_nan():
@@ -97,11 +106,12 @@ def test_gat_layer_masked_inputs_never_leak_even_nan():
     x = jax.random.normal(jax.random.PRNGKey(1), (4, 3))
     mask = jnp.array([True, False, True, False])
     bad = x.at[1].set(jnp.nan).at[3].set(1e6)
-    for agg in ("attention", "mean", "sum"):
-        out, alpha = gat_layer(w, x, mask, agg)
-        out_bad, alpha_bad = gat_layer(w, bad, mask, agg)
+    for agg, self_term in itertools.product(("attention", "mean", "sum"), (False, True)):
+        out, alpha = gat_layer(w, x, mask, agg, self_term)
+        out_bad, alpha_bad = gat_layer(w, bad, mask, agg, self_term)
         assert np.array_equal(out, out_bad) and np.array_equal(alpha, alpha_bad)
-        grad = jax.grad(lambda x, agg=agg: gat_layer(w, x, mask, agg)[0].sum())(bad)
+        layer = lambda x, agg=agg, st=self_term: gat_layer(w, x, mask, agg, st)[0].sum()
+        grad = jax.grad(layer)(bad)
         assert np.all(np.isfinite(grad)) and np.all(np.asarray(grad)[[1, 3]] == 0)
     # all agents masked: zeros, no NaN
     out, alpha = gat_layer(w, x, jnp.zeros(4, bool), "attention")
@@ -122,7 +132,11 @@ def test_flat_gat_weights_roundtrip():
 
 # --- critic -----------------------------------------------------------------------------
 @pytest.mark.parametrize(
-    "cfg", ALL_CONFIGS, ids=lambda c: f"{c.aggregation}-hyper{int(c.hypernet)}-asrl{int(c.asrl)}"
+    "cfg",
+    ALL_CONFIGS,
+    ids=lambda c: (
+        f"{c.aggregation}-hyper{int(c.hypernet)}-asrl{int(c.asrl)}" + ("-self" * c.self_term)
+    ),
 )
 def test_critic_permutation_and_masking_invariance(cfg, hvae_params, inputs):
     critic, params = make(cfg, hvae_params, inputs)

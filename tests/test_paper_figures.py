@@ -244,3 +244,7 @@ def test_across_agents_share_separates_agent_from_state_spread():
     out, alpha = gat_layer(w, x, jnp.ones(4, bool))
     np.testing.assert_allclose(alpha, np.repeat(alpha[:1], 4, axis=0), rtol=1e-6)
     np.testing.assert_allclose(out, np.repeat(out[:1], 4, axis=0), rtol=1e-6)  # one output
+    # the self term keeps each agent's own features: the same weights, four outputs
+    out_self, alpha_self = gat_layer(w, x, jnp.ones(4, bool), self_term=True)
+    np.testing.assert_allclose(alpha_self, alpha)
+    assert pf.across_agents_share(np.asarray(out_self)[None]) > 0.1

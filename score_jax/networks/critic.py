@@ -71,6 +71,11 @@ class CriticConfig:
       hyper_hidden: hidden width of the hypernetwork MLP.
       layer_norm: a LayerNorm after every hidden layer of p_w, f_xi and the hypernetwork (a
         normalised critic, as SimBa / BRO / CrossQ).
+      self_term: each GAT layer adds the receiver's own ``theta x_i`` inside its ELU
+        (``x'_i = ELU(theta x_i + sum_j alpha_ij theta x_j)``, no extra weights). Off, the
+        paper's update gives every agent of a state the same embedding (the attention on a
+        complete graph is static, see ``networks.gat``); a departure from the paper, measured
+        in ``docs/learning.md``.
     """
 
     hidden: int = 64
@@ -82,6 +87,7 @@ class CriticConfig:
     finetune_asrl: bool = True
     hyper_hidden: int = 32
     layer_norm: bool = False
+    self_term: bool = False
 
     def __post_init__(self):
         if self.aggregation not in AGGREGATIONS:
@@ -242,7 +248,7 @@ class GraphCritic(nn.Module):
             weights = HyperNet(dims, cfg.hyper_hidden, cfg.layer_norm, name="hyper")(obs)
         else:
             weights = unflatten_gat_weights(GATParams(dims, name="gat")(), dims)
-        x, alpha = gat_stack(weights, e, mask, cfg.aggregation)
+        x, alpha = gat_stack(weights, e, mask, cfg.aggregation, cfg.self_term)
 
         w = jnp.asarray(mask, jnp.float32)[:, None]
         pooled = jnp.sum(x * w, 0) / jnp.maximum(jnp.sum(w), 1.0)  # Mean over active agents

@@ -7,7 +7,16 @@ Attention (§4.2), for agent i over the active agents j (i included, the graph i
 
     alpha_ij = exp(LeakyReLU(a^T [theta x_i || theta x_j]))
                / sum_k exp(LeakyReLU(a^T [theta x_i || theta x_k]))
-    x'_i     = ELU( sum_j alpha_ij theta x_j )
+    x'_i     = ELU( sum_j alpha_ij theta x_j )                  (the paper's update)
+    x'_i     = ELU( theta x_i + sum_j alpha_ij theta x_j )      (``self_term=True``, ours)
+
+On a complete graph this attention is static (Brody et al. 2022): wherever the LeakyReLU keeps
+its sign over the senders j, the receiver's term ``a_1 . theta x_i`` is a constant of row i and
+cancels in the softmax, so every receiver gets the same weights and, without a self term, the
+same output: after the paper's update all agents of a state share one embedding. The self term
+keeps each agent's own features inside the nonlinearity (as GraphSAGE / GIN do), at no extra
+weights, so the outputs differ per agent and the pooled mean holds products of one agent's
+features with the others' message. It is a switch (``CriticConfig.self_term``), off by default.
 
 Masked (failed, dropped or padded) agents are removed with ``where``, never with large
 negative additions: they get exactly zero attention, send nothing, and their outputs are
@@ -46,7 +55,11 @@ class GATWeights:
 
 
 def gat_layer(
-    w: GATWeights, x: jax.Array, mask: jax.Array, aggregation: Aggregation = "attention"
+    w: GATWeights,
+    x: jax.Array,
+    mask: jax.Array,
+    aggregation: Aggregation = "attention",
+    self_term: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """One masked GAT layer over a complete graph of ``n`` agents.
 
@@ -56,6 +69,7 @@ def gat_layer(
       mask: ``[n]`` bool, True for active agents.
       aggregation: ``"attention"`` (softmax weights above), ``"mean"`` (alpha_ij = 1 / #active)
         or ``"sum"`` (alpha_ij = 1) over the active j.
+      self_term: add the receiver's own ``theta x_i`` inside the ELU (see the module docstring).
 
     Returns:
       ``(x_out [n, d_out], alpha [n, n])``; rows and columns of inactive agents are exactly 0
@@ -83,7 +97,8 @@ def gat_layer(
         alpha = edge / jnp.maximum(count, 1).astype(h.dtype)
     else:
         alpha = edge.astype(h.dtype)
-    out = jax.nn.elu(alpha @ h)
+    message = alpha @ h
+    out = jax.nn.elu(message + h if self_term else message)
     return jnp.where(mask[:, None], out, 0.0), alpha
 
 
@@ -92,11 +107,12 @@ def gat_stack(
     x: jax.Array,
     mask: jax.Array,
     aggregation: Aggregation = "attention",
+    self_term: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """``m`` GAT layers in a row: ``[n, d_0] -> ([n, d_m], alpha [m, n, n])``."""
     alphas = []
     for w in weights:
-        x, alpha = gat_layer(w, x, mask, aggregation)
+        x, alpha = gat_layer(w, x, mask, aggregation, self_term)
         alphas.append(alpha)
     return x, jnp.stack(alphas)
 
