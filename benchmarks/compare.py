@@ -64,7 +64,7 @@ from score_jax.evaluation.stats import (  # noqa: E402
 from score_jax.evaluation.transfer import TransferArgs, run_transfer  # noqa: E402
 from score_jax.run.build import build  # noqa: E402
 from score_jax.run.compile_cache import enable_compile_cache  # noqa: E402
-from score_jax.run.config import TrainConfig, to_dict  # noqa: E402
+from score_jax.run.config import TrainConfig, from_saved, to_dict  # noqa: E402
 from score_jax.run.cpu_split import split_cpu_for_seeds  # noqa: E402
 from score_jax.run.driver import train  # noqa: E402
 from score_jax.run.side_by_side import run_side_by_side  # noqa: E402
@@ -216,9 +216,33 @@ def _cached(path: str, key: dict) -> dict | None:
     """The result stored at ``path`` if it was produced with the same settings ``key``."""
     if os.path.exists(path):
         saved = json.load(open(path))
-        if saved.get("key") == key:
+        if same_settings(saved.get("key"), key):
             return saved
     return None
+
+
+def _option_paths(d: dict, prefix: tuple[str, ...] = ()) -> set[tuple[str, ...]]:
+    out = set()
+    for k, v in d.items():
+        out |= _option_paths(v, (*prefix, k)) if isinstance(v, dict) else {(*prefix, k)}
+    return out
+
+
+def same_settings(saved_key: dict | None, key: dict) -> bool:
+    """Whether a stored result's ``saved_key`` names the run ``key`` asks for. A key written
+    before an option existed lacks it: it is read as the run was built, with the option at the
+    value it had then (``run.config.from_saved``: the current default, or the old value of a
+    changed default), so adding an option does not orphan every stored run. A key naming an
+    option that no longer exists matches nothing (what it did cannot be checked)."""
+    if saved_key == key:
+        return True
+    if not isinstance(saved_key, dict) or not isinstance(saved_key.get("config"), dict):
+        return False
+    config = saved_key["config"]
+    if not _option_paths(config) <= _option_paths(key["config"]):
+        return False
+    extra = {k: v for k, v in saved_key.items() if k != "config"}
+    return _key(from_saved(config), **extra) == key
 
 
 # Where a run lives is not one of its settings: leaving it out of the key lets a work directory

@@ -367,3 +367,30 @@ def test_seed_walls_of_seeds_trained_one_after_another(tmp_path):
         "100,0,1,10.0\n200,0,2,25.0\n100,1,1,31.5\n200,1,2,40.0\n100,2,1,44.0\n200,2,2,47.0\n"
     )
     assert learning.seed_walls(str(csv)) == pytest.approx([25.0, 15.0, 7.0])
+
+
+def test_a_stored_result_from_before_an_option_existed_is_reused(tmp_path):
+    """A result.json whose key lacks an option added since (at a default that keeps the old
+    behaviour) is the same run; a changed value, a changed default's old value or an option
+    that no longer exists are not."""
+    key = compare._key(TrainConfig(run_dir=str(tmp_path)), episodes=10)
+    copy = lambda: json.loads(json.dumps(key))
+    older = copy()
+    del older["config"]["score"]["critic"]["self_term"]
+    assert compare.same_settings(older, key)
+    changed = copy()
+    changed["config"]["score"]["critic"]["self_term"] = True
+    assert not compare.same_settings(changed, key)
+    before_finetune = copy()  # saved before finetune_asrl's default became True: it ran frozen
+    del before_finetune["config"]["score"]["critic"]["finetune_asrl"]
+    assert not compare.same_settings(before_finetune, key)
+    removed = copy()
+    removed["config"]["score"]["critic"]["an_option_since_removed"] = 1
+    assert not compare.same_settings(removed, key)
+    other_episodes = copy()
+    del other_episodes["config"]["score"]["critic"]["self_term"]
+    other_episodes["episodes"] = 5
+    assert not compare.same_settings(other_episodes, key)
+    path = tmp_path / "result.json"
+    json.dump({"key": older, "returns": [1.0]}, open(path, "w"))
+    assert compare._cached(str(path), key)["returns"] == [1.0]
