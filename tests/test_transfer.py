@@ -10,7 +10,7 @@ import pytest
 
 from score_jax.agents import growth as tr
 from score_jax.agents.replay import replay_sample
-from score_jax.agents.score.transfer import embed_new, grow_agent
+from score_jax.agents.score.transfer import embed_new, grow_agent, transfer_optimizers
 from score_jax.evaluation.transfer import TransferArgs, run_transfer
 from score_jax.run.build import build, restore_run
 from score_jax.run.config import TransferSpec
@@ -122,10 +122,34 @@ def test_frozen_parts_are_bitwise_unchanged_after_a_finetuning_step(subset_run, 
     jax.tree.map(
         np.testing.assert_array_equal, new.consts.critic_inputs, agent.consts.critic_inputs
     )  # HVAE and c_i frozen
+    jax.tree.map(
+        np.testing.assert_array_equal,
+        new.critic.net["critics"]["encoder"],
+        agent.critic.net["critics"]["encoder"],
+    )  # the critic's own encoders frozen (no --finetune-critic-encoder)
     assert any(
         not np.array_equal(a, b)
         for a, b in zip(jax.tree.leaves(agent.critic), jax.tree.leaves(new.critic), strict=True)
     )  # p_w, GAT, f_xi train
+
+
+def test_finetune_critic_encoder_opens_only_the_critics_encoders(grown):
+    """--finetune-critic-encoder: the critic optimiser of a transfer run updates the critic's
+    own encoders too; without it they get exactly zero updates; every other critic subtree
+    trains either way."""
+    run, _, agent = grown
+    sc = run.algo.networks.config
+    trainable = np.array([False, False, True])
+    grads = jax.tree.map(jnp.ones_like, agent.critic)
+    steps = {}
+    for flag in (False, True):
+        _, critic_opt, _ = transfer_optimizers(sc, trainable, flag)
+        updates, _ = critic_opt.update(grads, critic_opt.init(agent.critic), agent.critic)
+        steps[flag] = updates.net["critics"]
+    moved = lambda tree: [bool(np.any(np.asarray(x) != 0)) for x in jax.tree.leaves(tree)]
+    assert not any(moved(steps[False]["encoder"])) and all(moved(steps[True]["encoder"]))
+    for name in set(steps[True]) - {"encoder"}:
+        assert all(moved(steps[True][name])) and all(moved(steps[False][name])), name
 
 
 def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path, caplog):

@@ -2,6 +2,7 @@
 every problem at once, one ``error:`` line each, exit status 2, no traceback, and nothing created
 on a path that is only read. Environment options are typed against the environment's config."""
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -246,6 +247,32 @@ def test_new_actor_prior_is_refused_for_a_fixed_width_baseline(tmp_path, no_work
         refused[algo] = [p for p in problems if p.startswith("--new-actor-prior")]
     assert len(refused["ppo"]) == 1 and "fixed-width baseline" in refused["ppo"][0]
     assert refused["score"] == []
+
+
+def test_finetune_critic_encoder_needs_a_score_critic_with_encoders(tmp_path, no_work):
+    """--finetune-critic-encoder is accepted for a SCORE run (its critic owns encoders by
+    default), refused with the reason for one whose critic reads the frozen HVAE and for a
+    baseline."""
+    refused = {}
+    for name, algo, own in (
+        ("score", "score", True),
+        ("frozen", "score", False),
+        ("isac", "isac", True),
+    ):
+        run_dir = tmp_path / name
+        cfg = TrainConfig(env="probe", algo=algo, run_dir=str(run_dir), subspaces="a,b")
+        critic = dataclasses.replace(cfg.score.critic, finetune_asrl=own)
+        cfg = dataclasses.replace(cfg, score=dataclasses.replace(cfg.score, critic=critic))
+        ckpt = Checkpointer(str(run_dir))
+        ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
+        ckpt.close()
+        dump_json(str(run_dir / "config.json"), to_dict(cfg))
+        args = TransferArgs(checkpoint=str(run_dir), finetune_critic_encoder=True)
+        problems = validate_module.validate_transfer_args(args)
+        refused[name] = [p for p in problems if p.startswith("--finetune-critic-encoder")]
+    assert refused["score"] == []
+    assert len(refused["frozen"]) == 1 and "no encoders of its own" in refused["frozen"][0]
+    assert len(refused["isac"]) == 1 and "'isac'" in refused["isac"][0]
 
 
 def test_command_lines_exit_2_without_traceback(tmp_path):

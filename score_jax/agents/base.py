@@ -102,6 +102,8 @@ class BuildContext:
       updates_per_step: gradient updates per vectorised step of the off-policy trainer.
       trainable: in a transfer run (§4.3), ``[n_agents]`` True for the agents whose actors
         train (new sub-spaces, or all with ``finetune_old_actors``); None in an ordinary run.
+      finetune_encoder: in a SCORE transfer run, the critic's own encoders fine-tune too
+        (``TransferSpec.finetune_critic_encoder``; frozen otherwise, §4.3).
       prior: ``[n_agents]`` bool, the agents whose untrained policy starts at its sub-space's
         default (``TrainConfig.default_prior``; in a transfer run the new agents follow
         ``TransferSpec.new_actor_prior``); None = every agent. Without the prior a policy
@@ -122,6 +124,7 @@ class BuildContext:
     num_envs: int = 8
     updates_per_step: int = 1
     trainable: np.ndarray | None = None
+    finetune_encoder: bool = False
     prior: np.ndarray | None = None
     transfer_variant: str | None = None
     penalty_coef: float = 1.0

@@ -49,6 +49,10 @@ class TransferArgs:
     which lifts the Initial return towards the source run's. SCORE, ISAC, MAAC: actor offsets;
     QMIX: the new agents' candidate grid and Q head start. Refused for the fixed-width sac, ppo
     and hppo, which add no actors (their subset run started the unseen heads untrained)."""
+    finetune_critic_encoder: bool = False
+    """SCORE only: also fine-tune the critic's own encoders (its copy of the HVAE's state and
+    action encoders, trained with the critic since ``--score.critic.finetune-asrl``), which
+    §4.3 keeps frozen with the HVAE (default: frozen)."""
     compare_scratch: bool = False
     """Also train the same algorithm from scratch on the target space with the same budget, and
     plot both."""
@@ -102,6 +106,7 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
         tuple(new_names),
         args.finetune_old_actors,
         args.new_actor_prior,
+        args.finetune_critic_encoder,
     )
     initial = {}
 

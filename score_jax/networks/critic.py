@@ -284,14 +284,15 @@ class TwinCritic(nn.Module):
         )(obs, actions, dim_mask, c, mask, hvae_params)
 
 
-def finetune_mask(params: Any) -> Any:
+def finetune_mask(params: Any, encoder: bool = False) -> Any:
     """Pytree of bools over critic params (GraphCritic or TwinCritic): True on the subtrees
     transfer fine-tunes (``p_w``, ``gat`` / ``hyper``, ``f_xi``, §4.3), False elsewhere
-    (the critic's own encoder when it has one). Use with ``optax.masked`` or
-    ``optax.multi_transform``."""
+    (the critic's own encoder when it has one, unless ``encoder``). Use with
+    ``optax.masked`` or ``optax.multi_transform``."""
+    subtrees = FINETUNE_SUBTREES + (("encoder",) if encoder else ())
 
     def mark(path, _):
         names = [getattr(p, "key", getattr(p, "name", None)) for p in path]
-        return any(name in FINETUNE_SUBTREES for name in names)
+        return any(name in subtrees for name in names)
 
     return jax.tree_util.tree_map_with_path(mark, params)

@@ -196,6 +196,7 @@ def build(
         num_envs=cfg.off_policy.num_envs,
         updates_per_step=spec.updates_per_step,
         trainable=trainable_agents(env.space, agent_index, transfer),
+        finetune_encoder=transfer is not None and transfer.finetune_critic_encoder,
         prior=prior_agents(cfg, [env.space.names[i] for i in agent_index], transfer),
         transfer_variant=cfg.single.transfer_variant,
         penalty_coef=cfg.single.penalty_coef,

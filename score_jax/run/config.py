@@ -203,23 +203,28 @@ class TransferSpec:
     ``source``: the trained run's directory; ``new``: the sub-spaces that are new (their actors
     train from scratch); ``finetune_old_actors``: also fine-tune the actors seen before;
     ``new_actor_prior``: the new actors start at their sub-spaces' defaults (the default
-    prior); False = untrained, mid-range with uniform choices (§4.3).
+    prior); False = untrained, mid-range with uniform choices (§4.3);
+    ``finetune_critic_encoder``: SCORE's critic also fine-tunes its own copy of the HVAE's
+    encoders (``CriticConfig.finetune_asrl``), which §4.3 keeps frozen.
     """
 
     source: str
     new: tuple[str, ...]
     finetune_old_actors: bool = False
     new_actor_prior: bool = False
+    finetune_critic_encoder: bool = False
 
     @classmethod
     def from_dict(cls, d: dict) -> TransferSpec:
         """A saved spec (``dataclasses.asdict``); one saved before ``new_actor_prior`` existed
-        gave its new actors the default prior, so a missing key reads True."""
+        gave its new actors the default prior, so a missing key reads True; one saved before
+        ``finetune_critic_encoder`` existed kept the encoders frozen."""
         return cls(
             d["source"],
             tuple(d["new"]),
             bool(d["finetune_old_actors"]),
             bool(d.get("new_actor_prior", True)),
+            bool(d.get("finetune_critic_encoder", False)),
         )
 
 

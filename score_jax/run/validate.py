@@ -491,7 +491,8 @@ def _growing() -> str:
 def validate_transfer_args(args) -> list[str]:
     """Problems of ``score-transfer`` arguments (``checkpoint``, ``env``, ``subspaces``,
     ``total_steps``, ``run_dir``, ``eval_episodes``, ``compare_scratch``, ``new_actor_prior``:
-    only for an algorithm that adds actors): the source run, the
+    only for an algorithm that adds actors, ``finetune_critic_encoder``: only for a SCORE
+    critic with encoders of its own): the source run, the
     target sub-spaces (known, not empty, every trained one included, at least one new) and the
     fine-tuning run's own configuration and directories."""
     src, problems = _source_run("--checkpoint", args.checkpoint)
@@ -521,6 +522,18 @@ def validate_transfer_args(args) -> list[str]:
             "new actors: the new sub-spaces' heads come from the subset run, which started them "
             "untrained (and trained them as --single.transfer-variant says)"
         )
+    if args.finetune_critic_encoder:
+        critic = src.score.critic
+        if src.algo != "score":
+            problems.append(
+                f"--finetune-critic-encoder: only SCORE's critic has encoders of its own; "
+                f"the checkpoint was trained with {src.algo!r}"
+            )
+        elif critic.asrl and not critic.finetune_asrl:
+            problems.append(
+                "--finetune-critic-encoder: the checkpoint's critic reads the frozen HVAE "
+                "(--score.critic.no-finetune-asrl), so it has no encoders of its own to fine-tune"
+            )
     run_dir = transfer_run_dir(args)
     if os.path.abspath(run_dir) == os.path.abspath(args.checkpoint):
         problems.append(f"--run-dir {run_dir}: is the trained run's own directory")

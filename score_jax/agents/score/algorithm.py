@@ -44,7 +44,7 @@ def make_score(sc: ScoreConfig, ctx: BuildContext) -> Algorithm:
 
     frozen_shapes = lambda: frozen_template(env, agent_index, sc, width)
     if ctx.trainable is not None:  # a fine-tuning run grown from a subset run (§4.3)
-        optimizers = transfer_optimizers(sc, ctx.trainable)
+        optimizers = transfer_optimizers(sc, ctx.trainable, ctx.finetune_encoder)
     else:
         optimizers = sn.make_optimizers(sc)
     update = sn.make_update(nets, optimizers)

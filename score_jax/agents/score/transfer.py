@@ -9,8 +9,9 @@ Starting from a run trained on a subset of sub-spaces:
    actors act around their default); the agents are re-ordered into the space's order, so the
    result is an ordinary run over the new sub-space set (the graph critic is permutation
    invariant);
-3. fine-tune only p_w, the GAT (or its hypernetwork) and f_xi of the critic, train the new
-   actors, and keep the old actors frozen (or fine-tune them with ``finetune_old_actors``).
+3. fine-tune only p_w, the GAT (or its hypernetwork) and f_xi of the critic (and the critic's
+   own encoders with ``finetune_critic_encoder``), train the new actors, and keep the old
+   actors frozen (or fine-tune them with ``finetune_old_actors``).
 
 Frozen parameters get exactly zero updates, so they stay bitwise unchanged.
 """
@@ -31,17 +32,20 @@ from score_jax.networks.actor import grow_agents, select_agents
 from score_jax.networks.critic import finetune_mask
 
 
-def transfer_optimizers(cfg: ScoreConfig, trainable_agents):
+def transfer_optimizers(cfg: ScoreConfig, trainable_agents, finetune_encoder: bool = False):
     """(actor, critic, alpha) optimisers of a fine-tuning run (§4.3).
 
     Actors: Adam, then the rows of frozen agents zeroed. Critic: Adam on p_w, GAT / hypernet
-    and f_xi (and the free codes c_i when ASRL is off); every other subtree frozen.
+    and f_xi (and the free codes c_i when ASRL is off, and the critic's own encoders with
+    ``finetune_encoder``); every other subtree frozen.
     """
     clip = optax.clip_by_global_norm(cfg.grad_clip)
     actor_opt = optax.chain(clip, optax.adam(cfg.actor_lr), freeze_agent_rows(trainable_agents))
 
     def labels(critic_vars):
-        net = jax.tree.map(lambda t: "train" if t else "freeze", finetune_mask(critic_vars.net))
+        net = jax.tree.map(
+            lambda t: "train" if t else "freeze", finetune_mask(critic_vars.net, finetune_encoder)
+        )
         c = None if critic_vars.c is None else jax.tree.map(lambda _: "train", critic_vars.c)
         return critic_vars.replace(net=net, c=c)
 
