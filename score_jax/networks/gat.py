@@ -16,7 +16,10 @@ cancels in the softmax, so every receiver gets the same weights and, without a s
 same output: after the paper's update all agents of a state share one embedding. The self term
 keeps each agent's own features inside the nonlinearity (as GraphSAGE / GIN do), at no extra
 weights, so the outputs differ per agent and the pooled mean holds products of one agent's
-features with the others' message. It is a switch (``CriticConfig.self_term``), off by default.
+features with the others' message. That is what the layer allows, not what training does with
+it: trained critics with the term still gave the agents of a state near-identical embeddings
+and no higher return (``docs/learning.md``), so it is a switch (``CriticConfig.self_term``),
+off by default.
 
 Masked (failed, dropped or padded) agents are removed with ``where``, never with large
 negative additions: they get exactly zero attention, send nothing, and their outputs are
