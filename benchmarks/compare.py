@@ -64,7 +64,12 @@ from score_jax.evaluation.stats import (  # noqa: E402
 from score_jax.evaluation.transfer import TransferArgs, run_transfer  # noqa: E402
 from score_jax.run.build import build  # noqa: E402
 from score_jax.run.compile_cache import enable_compile_cache  # noqa: E402
-from score_jax.run.config import TrainConfig, from_saved, to_dict  # noqa: E402
+from score_jax.run.config import (  # noqa: E402
+    TrainConfig,
+    critic_owns_encoders,
+    from_saved,
+    to_dict,
+)
 from score_jax.run.cpu_split import split_cpu_for_seeds  # noqa: E402
 from score_jax.run.driver import train  # noqa: E402
 from score_jax.run.side_by_side import run_side_by_side  # noqa: E402
@@ -242,6 +247,8 @@ def same_settings(saved_key: dict | None, key: dict) -> bool:
     if not _option_paths(config) <= _option_paths(key["config"]):
         return False
     extra = {k: v for k, v in saved_key.items() if k != "config"}
+    if "finetune_critic_encoder" in key:  # a transfer key saved before it existed: they froze
+        extra.setdefault("finetune_critic_encoder", False)
     return _key(from_saved(config), **extra) == key
 
 
@@ -261,8 +268,12 @@ def _full_cache(cfg: TrainConfig, n_episodes: int, **extra) -> tuple[str, dict]:
 
 
 def _transfer_cache(cfg: TrainConfig, target: str, steps: int, n_episodes: int):
-    """Where ``run_transfer_pair`` keeps its result and the key it must match."""
-    return os.path.join(target, "result.json"), _key(cfg, episodes=n_episodes, steps=steps)
+    """Where ``run_transfer_pair`` keeps its result and the key it must match: the subset run's
+    settings and what the fine-tuning trains beyond §4.3's parts (SCORE's critic encoders)."""
+    key = _key(
+        cfg, episodes=n_episodes, steps=steps, finetune_critic_encoder=critic_owns_encoders(cfg)
+    )
+    return os.path.join(target, "result.json"), key
 
 
 def final_returns(run, n_episodes: int) -> list[float]:

@@ -394,3 +394,16 @@ def test_a_stored_result_from_before_an_option_existed_is_reused(tmp_path):
     path = tmp_path / "result.json"
     json.dump({"key": older, "returns": [1.0]}, open(path, "w"))
     assert compare._cached(str(path), key)["returns"] == [1.0]
+
+
+def test_a_stored_transfer_from_before_the_encoder_switch_is_not_reused(tmp_path):
+    """A transfer result saved before score-transfer fine-tuned SCORE's critic encoders ran
+    with them frozen: it does not stand for today's SCORE transfer, and still does for a
+    baseline's (whose critic has no such encoders)."""
+    for algo, reused in (("score", False), ("isac", True)):
+        cfg = TrainConfig(algo=algo, run_dir=str(tmp_path / algo))
+        _, key = compare._transfer_cache(cfg, str(tmp_path / "t"), 100, 10)
+        assert key["finetune_critic_encoder"] is (algo == "score")
+        before = {k: v for k, v in key.items() if k != "finetune_critic_encoder"}
+        assert compare.same_settings(before, key) is reused
+        assert compare.same_settings(key, key)

@@ -126,7 +126,7 @@ def test_frozen_parts_are_bitwise_unchanged_after_a_finetuning_step(subset_run, 
         np.testing.assert_array_equal,
         new.critic.net["critics"]["encoder"],
         agent.critic.net["critics"]["encoder"],
-    )  # the critic's own encoders frozen (no --finetune-critic-encoder)
+    )  # the critic's own encoders frozen (this spec's finetune_critic_encoder is False)
     assert any(
         not np.array_equal(a, b)
         for a, b in zip(jax.tree.leaves(agent.critic), jax.tree.leaves(new.critic), strict=True)
@@ -134,9 +134,9 @@ def test_frozen_parts_are_bitwise_unchanged_after_a_finetuning_step(subset_run, 
 
 
 def test_finetune_critic_encoder_opens_only_the_critics_encoders(grown):
-    """--finetune-critic-encoder: the critic optimiser of a transfer run updates the critic's
-    own encoders too; without it they get exactly zero updates; every other critic subtree
-    trains either way."""
+    """With ``finetune_critic_encoder`` (score-transfer's default) the critic optimiser of a
+    transfer run updates the critic's own encoders too; without it (--freeze-critic-encoder)
+    they get exactly zero updates; every other critic subtree trains either way."""
     run, _, agent = grown
     sc = run.algo.networks.config
     trainable = np.array([False, False, True])
@@ -180,6 +180,12 @@ def test_transfer_cli_reports_initial_and_converge(subset_run, tmp_path, caplog)
     # the fine-tuned run is an ordinary run over all sub-spaces: it restores and evaluates
     restored = restore_run(str(out), log=lambda *a: None).for_seed(0)
     assert list(restored.agent_index) == [0, 1, 2] and int(restored.state.env_steps) == 400
+    # by default the critic's own encoders fine-tuned (--freeze-critic-encoder keeps them)
+    assert config["transfer"]["finetune_critic_encoder"] is True
+    encoders = [s.state.agent.critic.net["critics"]["encoder"] for s in (subset_run, restored)]
+    assert any(
+        not np.array_equal(a, b) for a, b in zip(*map(jax.tree.leaves, encoders), strict=True)
+    )
 
 
 def test_checkpoint_from_another_env_is_refused(subset_run, tmp_path):

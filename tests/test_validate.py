@@ -249,16 +249,13 @@ def test_new_actor_prior_is_refused_for_a_fixed_width_baseline(tmp_path, no_work
     assert refused["score"] == []
 
 
-def test_finetune_critic_encoder_needs_a_score_critic_with_encoders(tmp_path, no_work):
-    """--finetune-critic-encoder is accepted for a SCORE run (its critic owns encoders by
+def test_freeze_critic_encoder_needs_a_score_critic_with_encoders(tmp_path, no_work):
+    """--freeze-critic-encoder is accepted for a SCORE run (its critic owns encoders by
     default), refused with the reason for one whose critic reads the frozen HVAE and for a
     baseline."""
     refused = {}
-    for name, algo, own in (
-        ("score", "score", True),
-        ("frozen", "score", False),
-        ("isac", "isac", True),
-    ):
+    runs = (("score", "score", True), ("frozen", "score", False), ("isac", "isac", True))
+    for name, algo, own in runs:
         run_dir = tmp_path / name
         cfg = TrainConfig(env="probe", algo=algo, run_dir=str(run_dir), subspaces="a,b")
         critic = dataclasses.replace(cfg.score.critic, finetune_asrl=own)
@@ -267,9 +264,9 @@ def test_finetune_critic_encoder_needs_a_score_critic_with_encoders(tmp_path, no
         ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
         ckpt.close()
         dump_json(str(run_dir / "config.json"), to_dict(cfg))
-        args = TransferArgs(checkpoint=str(run_dir), finetune_critic_encoder=True)
+        args = TransferArgs(checkpoint=str(run_dir), freeze_critic_encoder=True)
         problems = validate_module.validate_transfer_args(args)
-        refused[name] = [p for p in problems if p.startswith("--finetune-critic-encoder")]
+        refused[name] = [p for p in problems if p.startswith("--freeze-critic-encoder")]
     assert refused["score"] == []
     assert len(refused["frozen"]) == 1 and "no encoders of its own" in refused["frozen"][0]
     assert len(refused["isac"]) == 1 and "'isac'" in refused["isac"][0]

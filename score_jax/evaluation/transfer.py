@@ -20,7 +20,7 @@ from score_jax.agents.growth import plan
 from score_jax.evaluation.curves import plot_curves
 from score_jax.run.build import resolve_agent_index, restore_run
 from score_jax.run.checkpoint import dump_json
-from score_jax.run.config import TransferSpec
+from score_jax.run.config import TransferSpec, critic_owns_encoders
 from score_jax.run.driver import train
 from score_jax.run.validate import UsageError, transfer_run_dir, validate_transfer_args
 
@@ -49,10 +49,13 @@ class TransferArgs:
     which lifts the Initial return towards the source run's. SCORE, ISAC, MAAC: actor offsets;
     QMIX: the new agents' candidate grid and Q head start. Refused for the fixed-width sac, ppo
     and hppo, which add no actors (their subset run started the unseen heads untrained)."""
-    finetune_critic_encoder: bool = False
-    """SCORE only: also fine-tune the critic's own encoders (its copy of the HVAE's state and
-    action encoders, trained with the critic since ``--score.critic.finetune-asrl``), which
-    §4.3 keeps frozen with the HVAE (default: frozen)."""
+    freeze_critic_encoder: bool = False
+    """SCORE only: keep the critic's own encoders (its copy of the HVAE's state and action
+    encoders) frozen, as §4.3 keeps the HVAE. By default they fine-tune with p_w, the
+    hypernetwork and f_xi, as they train with the critic in training
+    (``--score.critic.finetune-asrl``); frozen, the grown critic ended far below training from
+    scratch (``docs/learning.md`` entry 34). The HVAE that embeds the new sub-spaces stays
+    frozen either way."""
     compare_scratch: bool = False
     """Also train the same algorithm from scratch on the target space with the same budget, and
     plot both."""
@@ -106,7 +109,7 @@ def run_transfer(args: TransferArgs, log=print) -> dict:
         tuple(new_names),
         args.finetune_old_actors,
         args.new_actor_prior,
-        args.finetune_critic_encoder,
+        critic_owns_encoders(src.config) and not args.freeze_critic_encoder,
     )
     initial = {}
 

@@ -204,8 +204,9 @@ class TransferSpec:
     train from scratch); ``finetune_old_actors``: also fine-tune the actors seen before;
     ``new_actor_prior``: the new actors start at their sub-spaces' defaults (the default
     prior); False = untrained, mid-range with uniform choices (§4.3);
-    ``finetune_critic_encoder``: SCORE's critic also fine-tunes its own copy of the HVAE's
-    encoders (``CriticConfig.finetune_asrl``), which §4.3 keeps frozen.
+    ``finetune_critic_encoder``: SCORE's critic also fine-tunes its own encoders (its copy of
+    the HVAE's, ``CriticConfig.finetune_asrl``), as in training; False keeps them frozen with
+    the HVAE as §4.3 writes it (``score-transfer --freeze-critic-encoder``).
     """
 
     source: str
@@ -226,6 +227,15 @@ class TransferSpec:
             bool(d.get("new_actor_prior", True)),
             bool(d.get("finetune_critic_encoder", False)),
         )
+
+
+def critic_owns_encoders(cfg: TrainConfig) -> bool:
+    """Whether ``cfg``'s run is SCORE with a critic that owns encoders (its copy of the HVAE's,
+    ``CriticConfig.finetune_asrl``, or its own from scratch without ASRL), which a transfer run
+    fine-tunes unless ``score-transfer --freeze-critic-encoder``; a critic that reads the
+    frozen HVAE (``--score.critic.no-finetune-asrl``) has none."""
+    critic = cfg.score.critic
+    return cfg.algo == "score" and (critic.finetune_asrl or not critic.asrl)
 
 
 def prior_agents(cfg: TrainConfig, names, transfer: TransferSpec | None = None):

@@ -33,7 +33,13 @@ import jax
 import envs
 from score_jax import registry
 from score_jax.run.checkpoint import Checkpointer, CheckpointError, saved_run_config
-from score_jax.run.config import TrainConfig, TransferSpec, default_run_dir, from_saved
+from score_jax.run.config import (
+    TrainConfig,
+    TransferSpec,
+    critic_owns_encoders,
+    default_run_dir,
+    from_saved,
+)
 from score_jax.run.external import RESUME_ERROR
 
 MAX_SEED = 2**31 - 1 - 100_000  # the run derives further seeds by adding up to 50_000
@@ -491,7 +497,7 @@ def _growing() -> str:
 def validate_transfer_args(args) -> list[str]:
     """Problems of ``score-transfer`` arguments (``checkpoint``, ``env``, ``subspaces``,
     ``total_steps``, ``run_dir``, ``eval_episodes``, ``compare_scratch``, ``new_actor_prior``:
-    only for an algorithm that adds actors, ``finetune_critic_encoder``: only for a SCORE
+    only for an algorithm that adds actors, ``freeze_critic_encoder``: only for a SCORE
     critic with encoders of its own): the source run, the
     target sub-spaces (known, not empty, every trained one included, at least one new) and the
     fine-tuning run's own configuration and directories."""
@@ -522,18 +528,12 @@ def validate_transfer_args(args) -> list[str]:
             "new actors: the new sub-spaces' heads come from the subset run, which started them "
             "untrained (and trained them as --single.transfer-variant says)"
         )
-    if args.finetune_critic_encoder:
-        critic = src.score.critic
-        if src.algo != "score":
-            problems.append(
-                f"--finetune-critic-encoder: only SCORE's critic has encoders of its own; "
-                f"the checkpoint was trained with {src.algo!r}"
-            )
-        elif critic.asrl and not critic.finetune_asrl:
-            problems.append(
-                "--finetune-critic-encoder: the checkpoint's critic reads the frozen HVAE "
-                "(--score.critic.no-finetune-asrl), so it has no encoders of its own to fine-tune"
-            )
+    if args.freeze_critic_encoder and not critic_owns_encoders(src):
+        problems.append(
+            f"--freeze-critic-encoder: the checkpoint's critic has no encoders of its own to "
+            f"freeze (only SCORE's has, unless --score.critic.no-finetune-asrl made it read the "
+            f"frozen HVAE); it was trained with {src.algo!r}"
+        )
     run_dir = transfer_run_dir(args)
     if os.path.abspath(run_dir) == os.path.abspath(args.checkpoint):
         problems.append(f"--run-dir {run_dir}: is the trained run's own directory")
