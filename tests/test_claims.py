@@ -35,6 +35,7 @@ def by_name(claims):
 
 def test_labels_of_ablations():
     assert is_ablation("AL+HN") and is_ablation("ASRL+MF+HN") and is_ablation("ASRL+AL")
+    assert is_ablation("ASRL(eq.2)")  # a variant of SCORE, not a baseline it must beat
     assert not is_ablation("SCORE") and not is_ablation("ISAC") and not is_ablation("PPO-mask")
 
 

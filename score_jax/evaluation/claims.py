@@ -44,8 +44,9 @@ ABLATION_PREFIXES = ("ASRL", "AL", "MF", "SF")
 
 
 def is_ablation(label: str) -> bool:
-    """Whether a compare.py row label names a SCORE ablation (``ASRL+MF+HN``, ``AL+HN``, ...)."""
-    return label != SCORE and label.split("+")[0] in ABLATION_PREFIXES
+    """Whether a compare.py row label names a SCORE ablation (``ASRL+MF+HN``, ``AL+HN``, ...,
+    and ``ASRL(eq.2)``, the paper page's eq. 2 row)."""
+    return label != SCORE and label.split("+")[0].split("(")[0] in ABLATION_PREFIXES
 
 
 def comparison(x: Sequence[float], y: Sequence[float], x_label: str, y_label: str) -> dict:
