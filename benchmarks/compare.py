@@ -233,6 +233,11 @@ def _option_paths(d: dict, prefix: tuple[str, ...] = ()) -> set[tuple[str, ...]]
     return out
 
 
+# A key's non-config fields added since results were stored, at the value those runs had:
+# transfer results saved before the encoder switch kept SCORE's critic encoders frozen.
+_EXTRAS_BEFORE = {"finetune_critic_encoder": False}
+
+
 def same_settings(saved_key: dict | None, key: dict) -> bool:
     """Whether a stored result's ``saved_key`` names the run ``key`` asks for. A key written
     before an option existed lacks it: it is read as the run was built, with the option at the
@@ -247,8 +252,7 @@ def same_settings(saved_key: dict | None, key: dict) -> bool:
     if not _option_paths(config) <= _option_paths(key["config"]):
         return False
     extra = {k: v for k, v in saved_key.items() if k != "config"}
-    if "finetune_critic_encoder" in key:  # a transfer key saved before it existed: they froze
-        extra.setdefault("finetune_critic_encoder", False)
+    extra |= {k: v for k, v in _EXTRAS_BEFORE.items() if k in key and k not in extra}
     return _key(from_saved(config), **extra) == key
 
 

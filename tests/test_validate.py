@@ -217,10 +217,7 @@ def test_transfer_names_missing_subspaces(tmp_path, capsys, no_work):
     ``,,,`` is refused instead of meaning every sub-space (defect 9)."""
     run_dir = tmp_path / "src"
     cfg = TrainConfig(env="probe", run_dir=str(run_dir), subspaces="a", quiet=True)
-    ckpt = Checkpointer(str(run_dir))
-    ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
-    ckpt.close()
-    dump_json(str(run_dir / "config.json"), to_dict(cfg))
+    _saved_run(run_dir, cfg)
     assert transfer_cli.main(TransferArgs(checkpoint=str(run_dir), subspaces="b,c")) == 2
     err = capsys.readouterr().err
     assert "leaves out the trained sub-space(s) a" in err and "[0]" not in err
@@ -231,6 +228,14 @@ def test_transfer_names_missing_subspaces(tmp_path, capsys, no_work):
     assert not (tmp_path / "src-transfer").exists()
 
 
+def _saved_run(run_dir, cfg: TrainConfig) -> None:
+    """A finished run as the transfer checks read it: one checkpoint and its config.json."""
+    ckpt = Checkpointer(str(run_dir))
+    ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
+    ckpt.close()
+    dump_json(str(run_dir / "config.json"), to_dict(cfg))
+
+
 def test_new_actor_prior_is_refused_for_a_fixed_width_baseline(tmp_path, no_work):
     """A fixed-width run has no new actors to start at their defaults: --new-actor-prior is
     refused with the reason for a PPO run and accepted for a SCORE run."""
@@ -238,10 +243,7 @@ def test_new_actor_prior_is_refused_for_a_fixed_width_baseline(tmp_path, no_work
     for algo in ("ppo", "score"):
         run_dir = tmp_path / algo
         cfg = TrainConfig(env="probe", algo=algo, run_dir=str(run_dir), subspaces="a,b")
-        ckpt = Checkpointer(str(run_dir))
-        ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
-        ckpt.close()
-        dump_json(str(run_dir / "config.json"), to_dict(cfg))
+        _saved_run(run_dir, cfg)
         args = TransferArgs(checkpoint=str(run_dir), new_actor_prior=True)
         problems = validate_module.validate_transfer_args(args)
         refused[algo] = [p for p in problems if p.startswith("--new-actor-prior")]
@@ -260,10 +262,7 @@ def test_freeze_critic_encoder_needs_a_score_critic_with_encoders(tmp_path, no_w
         cfg = TrainConfig(env="probe", algo=algo, run_dir=str(run_dir), subspaces="a,b")
         critic = dataclasses.replace(cfg.score.critic, finetune_asrl=own)
         cfg = dataclasses.replace(cfg, score=dataclasses.replace(cfg.score, critic=critic))
-        ckpt = Checkpointer(str(run_dir))
-        ckpt.save(200, {"x": np.zeros(3, np.float32)}, {"env": "probe"})
-        ckpt.close()
-        dump_json(str(run_dir / "config.json"), to_dict(cfg))
+        _saved_run(run_dir, cfg)
         args = TransferArgs(checkpoint=str(run_dir), freeze_critic_encoder=True)
         problems = validate_module.validate_transfer_args(args)
         refused[name] = [p for p in problems if p.startswith("--freeze-critic-encoder")]
