@@ -17,6 +17,7 @@ from typing import Literal
 
 import tyro
 
+from score_jax.cli.devices import split_cpu_like_saved_run
 from score_jax.cli.errors import guarded
 from score_jax.evaluation.saved_run import evaluate_saved_run
 from score_jax.run.compile_cache import enable_compile_cache
@@ -49,6 +50,7 @@ class EvalArgs:
 
 def main(args: EvalArgs) -> int:
     """Evaluate; errors end as every command's do (``cli.errors``: ``error:`` lines, exit 1)."""
+    split_cpu_like_saved_run(args.run_dir)  # the devices its training used: the same programs
     enable_compile_cache(enabled=args.compile_cache)
     return guarded(
         lambda: evaluate_saved_run(

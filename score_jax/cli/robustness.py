@@ -13,6 +13,7 @@ from typing import Literal
 
 import tyro
 
+from score_jax.cli.devices import split_cpu_like_saved_run
 from score_jax.cli.errors import guarded
 from score_jax.evaluation.robustness import run_sweep
 from score_jax.run.build import restore_run
@@ -36,6 +37,7 @@ class RobustnessArgs:
 
 def main(args: RobustnessArgs) -> int:
     """Sweep; errors as ``error:`` lines, exit status 2 (usage) or 1 (run) (``cli.errors``)."""
+    split_cpu_like_saved_run(args.run_dir)  # the devices its training used: the same programs
     enable_compile_cache(enabled=args.compile_cache)
     return guarded(lambda: _sweep(args))
 

@@ -12,13 +12,12 @@ score-train --help                           # every option
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 
 import tyro
 
-from score_jax import registry
+from score_jax.cli.devices import saved_run_seeds, splits_cpu
 from score_jax.cli.errors import guarded
 from score_jax.evaluation.curves import REFERENCE_LINES, plot_learning_curve
 from score_jax.evaluation.report import final_evaluation, render_policy
@@ -39,7 +38,7 @@ def main(cfg: TrainConfig) -> int:
 
     ``--distributed``: every process runs this same command; they join (``run.distributed``)
     before anything starts JAX's backend, and only process 0 writes and prints."""
-    if _in_process(cfg.algo):  # brax's own loops use every device themselves
+    if splits_cpu(cfg.algo):  # brax's own loops use every device themselves
         split_cpu_for_seeds(_seeds_per_process(cfg), cfg.cpu_devices)
     return guarded(lambda: _start(cfg))
 
@@ -69,17 +68,7 @@ def _seeds_per_process(cfg: TrainConfig) -> int:
 
 def _num_seeds(cfg: TrainConfig) -> int:
     """The run's seeds: a resumed run's from its config.json (read before JAX starts)."""
-    if cfg.resume:
-        try:
-            with open(os.path.join(cfg.resume, "config.json")) as f:
-                return int(json.load(f).get("num_seeds", 1))
-        except (OSError, ValueError):
-            return 1  # validation reports the problem
-    return cfg.num_seeds
-
-
-def _in_process(algo: str) -> bool:
-    return algo not in registry.algorithm_names() or registry.entry(algo).in_process
+    return saved_run_seeds(cfg.resume) if cfg.resume else cfg.num_seeds
 
 
 def _train_and_report(cfg: TrainConfig) -> None:

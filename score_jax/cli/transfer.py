@@ -13,6 +13,7 @@ import sys
 
 import tyro
 
+from score_jax.cli.devices import split_cpu_like_saved_run
 from score_jax.cli.errors import guarded
 from score_jax.evaluation.transfer import TransferArgs, run_transfer
 from score_jax.run.compile_cache import enable_compile_cache
@@ -20,6 +21,7 @@ from score_jax.run.compile_cache import enable_compile_cache
 
 def main(args: TransferArgs) -> int:
     """Transfer; errors as ``error:`` lines, exit status 2 (usage) or 1 (run) (``cli.errors``)."""
+    split_cpu_like_saved_run(args.checkpoint)  # the devices its training used: the same programs
     enable_compile_cache(enabled=args.compile_cache)
     return guarded(lambda: run_transfer(args))
 
