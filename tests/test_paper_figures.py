@@ -227,6 +227,20 @@ def test_transfer_curves_from_a_comparison_render(tmp_path):
     assert_png(path)
 
 
+def test_transfer_panels_group_variants_with_score_as_the_reference():
+    labels = ["SCORE", "PPO", "PPO-mask", "QMIX-penalty", "QMIX", "ASRL+AL"]
+    assert pf.transfer_panels(labels) == [
+        ("PPO", ["SCORE", "PPO", "PPO-mask"]),
+        ("QMIX", ["SCORE", "QMIX-penalty", "QMIX"]),
+        ("ASRL+AL", ["SCORE", "ASRL+AL"]),
+    ]
+    # SCORE keeps its own panel when it is the only row, or when its family has variants.
+    assert pf.transfer_panels(["SCORE"]) == [("SCORE", ["SCORE"])]
+    with_variant = pf.transfer_panels(["PPO", "SCORE-mask", "SCORE"])
+    assert with_variant[0] == ("SCORE", ["SCORE-mask", "SCORE"])
+    assert pf.transfer_panels(["PPO", "PPO-penalty"]) == [("PPO", ["PPO", "PPO-penalty"])]
+
+
 def test_across_agents_share_separates_agent_from_state_spread():
     """Fig. 12's panel titles: 0 when the agents of a state coincide, 1 when only the agent
     matters; a GAT layer whose attention scores keep their sign gives every receiver the same

@@ -402,35 +402,89 @@ def transfer_curves_from_compare(compare: dict) -> tuple[dict, dict]:
     return curves, initial
 
 
+TRANSFER_VARIANT_SUFFIXES = ("-mask", "-penalty")
+# Within a panel each variant keeps its colour, so the panels read alike.
+_VARIANT_COLOURS = {"": "C0", "-mask": "C1", "-penalty": "C2"}
+_REFERENCE_ROW = "SCORE"
+
+
+def transfer_panels(labels: Sequence[str]) -> list[tuple[str, list[str]]]:
+    """Groups transfer rows into Fig. 6b/8b's panels: one per algorithm with its variants
+    (``"PPO"``, ``"PPO-mask"``, ``"PPO-penalty"`` share the panel ``"PPO"``), in the order the
+    algorithms first appear. SCORE's row, when there is one, is added to every other panel as
+    the reference line; its own panel comes first, and is left out when SCORE would be alone in
+    it while other panels show it. Returns ``[(panel title, [row labels])]``."""
+    families: dict[str, list[str]] = {}
+    for label in labels:
+        family = label
+        for suffix in TRANSFER_VARIANT_SUFFIXES:
+            if label.endswith(suffix):
+                family = label[: -len(suffix)]
+        families.setdefault(family, []).append(label)
+    reference = _REFERENCE_ROW if _REFERENCE_ROW in labels else None
+    panels = []
+    for family, rows in families.items():
+        if reference is not None and reference not in rows:
+            rows = [reference, *rows]
+        panels.append((family, rows))
+    panels.sort(key=lambda p: p[0] != reference)
+    if len(panels) > 1 and panels[0][1] == [reference]:
+        panels = panels[1:]
+    return panels
+
+
+def _row_colour(label: str, family: str) -> str:
+    if label == _REFERENCE_ROW:
+        return "black"
+    return _VARIANT_COLOURS.get(label[len(family) :], "C3")
+
+
 def plot_transfer_curves(
     curves: Mapping[str, Sequence[dict]],
     path: str,
     title: str = "",
     initial: Mapping[str, Sequence[float]] | None = None,
 ) -> None:
-    """Figs. 6b/8b: deterministic evaluation return against fine-tuning decisions, one colour per
-    row (``curves[label]``: a list of ``{"seed", "steps", "returns"}``, compare.py's format),
+    """Figs. 6b/8b: deterministic evaluation return against fine-tuning decisions, one panel per
+    algorithm with its transfer variants (``transfer_panels``; SCORE in black in every panel),
     every seed faint and the mean over seeds with its 95% band (``curves.plot_band``);
-    ``initial[label]`` (the per-seed returns before fine-tuning) as a marker at decision 0 with
-    its 95% interval."""
+    ``curves[label]`` is a list of ``{"seed", "steps", "returns"}`` (compare.py's format) and
+    ``initial[label]`` (the per-seed returns before fine-tuning) is drawn as a marker at
+    decision 0 with its 95% interval. The panels share their axes."""
     if not curves:
         raise ValueError("no transfer curves to plot")
-    fig = new_figure(8.5, 4.2)
-    ax = fig.subplots()
-    for colour, (label, per_seed) in zip(_colours(len(curves)), curves.items(), strict=True):
-        data = {
-            int(c["seed"]): (np.asarray(c["steps"], float), np.asarray(c["returns"], float))
-            for c in per_seed
-            if len(c["steps"])
-        }
-        plot_band(ax, data, label, colour, band_label=None)
-        if initial and label in initial:
-            mean, lo, hi = t_interval(np.asarray(initial[label], float)[:, None])
-            err = None if lo is None else [[mean[0] - lo[0]], [hi[0] - mean[0]]]
-            ax.errorbar([0.0], mean, yerr=err, fmt="D", color=colour, ms=5, capsize=3)
-    ax.set_xlabel("fine-tuning decisions (steps of the action-repeated env)")
-    ax.set_ylabel("episode return (deterministic evaluation)")
-    ax.set_title(title or "fine-tuning on unseen sub-action spaces (◆: before fine-tuning)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="95% band shaded")
+    panels = transfer_panels(list(curves))
+    ncols = min(3, len(panels))
+    nrows = -(-len(panels) // ncols)
+    fig = new_figure(4.6 * ncols + 0.6, 3.4 * nrows + 0.6)
+    axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False)
+    for ax, (family, rows) in zip(axes.ravel(), panels, strict=False):
+        for k, label in enumerate(rows):
+            colour = _row_colour(label, family)
+            data = {
+                int(c["seed"]): (np.asarray(c["steps"], float), np.asarray(c["returns"], float))
+                for c in curves[label]
+                if len(c["steps"])
+            }
+            plot_band(ax, data, label, colour, band_label=None)
+            if initial and label in initial:
+                mean, lo, hi = t_interval(np.asarray(initial[label], float)[:, None])
+                err = None if lo is None else [[mean[0] - lo[0]], [hi[0] - mean[0]]]
+                # Side by side at decision 0, so the intervals do not hide one another.
+                x = [-0.015 * k * max(max(c["steps"], default=1) for c in curves[label])]
+                ax.errorbar(x, mean, yerr=err, fmt="D", color=colour, ms=5, capsize=3)
+        ax.set_title(family, fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    for ax in axes.ravel()[len(panels) :]:
+        ax.set_visible(False)
+    for ax in axes[-1, :]:
+        ax.set_xlabel("fine-tuning decisions")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("episode return (deterministic)")
+    fig.suptitle(
+        (title or "fine-tuning on unseen sub-action spaces")
+        + "\n(◆ before fine-tuning; mean of the seeds with its 95% band, each seed faint)",
+        fontsize=10,
+    )
     fig.savefig(path, dpi=120)
