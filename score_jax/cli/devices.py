@@ -61,11 +61,9 @@ def saved_run_devices(run_dir: str) -> int | None:
     algo = saved.get("algo")
     if not isinstance(algo, str) or not splits_cpu(algo):
         return 1
-    return (
-        devices_for(saved_run_seeds(run_dir), os.cpu_count() or 1)
-        if saved.get("cpu_devices") is None
-        else int(saved["cpu_devices"])
-    )
+    if isinstance(saved.get("cpu_devices"), int):
+        return saved["cpu_devices"]  # the run's --cpu-devices
+    return devices_for(saved_run_seeds(run_dir), os.cpu_count() or 1)
 
 
 def split_cpu_like_saved_run(run_dir: str) -> int:

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from score_jax.agents.variants import VARIANTS
 from score_jax.core.spaces import agents_to_env_action
 from score_jax.evaluation.curves import plot_band, t_interval
 from score_jax.evaluation.saved_run import held_rollout
@@ -402,9 +403,10 @@ def transfer_curves_from_compare(compare: dict) -> tuple[dict, dict]:
     return curves, initial
 
 
-TRANSFER_VARIANT_SUFFIXES = ("-mask", "-penalty")
+# compare.py names a variant's row "<algorithm>-<variant>" and the plain one "<algorithm>".
+TRANSFER_VARIANT_SUFFIXES = tuple(f"-{v}" for v in VARIANTS if v != "plain")
 # Within a panel each variant keeps its colour, so the panels read alike.
-_VARIANT_COLOURS = {"": "C0", "-mask": "C1", "-penalty": "C2"}
+_VARIANT_COLOURS = {"": "C0", **{s: f"C{i + 1}" for i, s in enumerate(TRANSFER_VARIANT_SUFFIXES)}}
 _REFERENCE_ROW = "SCORE"
 
 
@@ -459,6 +461,7 @@ def plot_transfer_curves(
     fig = new_figure(4.6 * ncols + 0.6, 3.4 * nrows + 0.6)
     axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False)
     for ax, (family, rows) in zip(axes.ravel(), panels, strict=False):
+        span = max((max(c["steps"], default=0) for r in rows for c in curves[r]), default=0)
         for k, label in enumerate(rows):
             colour = _row_colour(label, family)
             data = {
@@ -471,7 +474,7 @@ def plot_transfer_curves(
                 mean, lo, hi = t_interval(np.asarray(initial[label], float)[:, None])
                 err = None if lo is None else [[mean[0] - lo[0]], [hi[0] - mean[0]]]
                 # Side by side at decision 0, so the intervals do not hide one another.
-                x = [-0.015 * k * max(max(c["steps"], default=1) for c in curves[label])]
+                x = [-0.015 * k * span]
                 ax.errorbar(x, mean, yerr=err, fmt="D", color=colour, ms=5, capsize=3)
         ax.set_title(family, fontsize=10)
         ax.grid(alpha=0.3)
