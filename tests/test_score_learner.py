@@ -279,3 +279,39 @@ def test_exploration_noise_is_held_for_hold_steps(finished_run):
             dataclasses.replace(cfg, exploration_hold=-2),
             finished_run.agent_index,
         )
+
+
+def test_exploration_shift_moves_each_subspace_as_a_whole_and_is_held(finished_run):
+    """exploration_shift=0.5 with exploration_hold=3: on the probe (continuous a [2], b [3],
+    discrete c [1]), every continuous column of an agent moves by one pre-tanh shift (the
+    same for all its columns, its own for each agent and env), discrete and padded columns are
+    untouched, and an env whose key is held keeps its shift."""
+    from score_jax.run.trainer import Trainer
+
+    base = dataclasses.replace(finished_run.config.off_policy, exploration_hold=3)
+    make = lambda cfg: Trainer(
+        finished_run.env, finished_run.algo.off_policy, cfg, finished_run.agent_index
+    )
+    plain = make(base)
+    shifted = make(dataclasses.replace(base, exploration_shift=0.5))
+    state = plain.init(jax.random.PRNGKey(5))
+    t = jnp.arange(base.num_envs) % 4
+    state = state.replace(agent=finished_run.state.agent, env_state=state.env_state.replace(t=t))
+    a, _ = plain._explore(state, jax.random.PRNGKey(10))
+    b, keys = shifted._explore(state, jax.random.PRNGKey(10))
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    continuous = shifted.continuous
+    np.testing.assert_array_equal(continuous[:, :3], [[1, 1, 0], [1, 1, 1], [0, 0, 0]])
+    np.testing.assert_array_equal(b[:, ~continuous], a[:, ~continuous])
+    edge = 1 - 1e-6
+    delta = np.arctanh(np.clip(b, -edge, edge)) - np.arctanh(np.clip(a, -edge, edge))
+    for agent, cols in ((0, [0, 1]), (1, [0, 1, 2])):
+        d = delta[:, agent, cols]  # [envs, columns]: one shift per env, equal over columns
+        np.testing.assert_allclose(d, d[:, :1].repeat(len(cols), 1), atol=1e-3)
+        assert np.all(np.abs(d[:, 0]) > 1e-3)
+    assert np.unique(np.round(delta[:, 0, 0], 4)).size == base.num_envs  # per env
+    assert not np.allclose(delta[:, 0, 0], delta[:, 1, 0], atol=1e-3)  # per agent
+    held = np.asarray(t % 3 != 0)
+    state = state.replace(explore_keys=keys)
+    c, _ = shifted._explore(state, jax.random.PRNGKey(11))
+    np.testing.assert_array_equal(np.asarray(c)[held], b[held].astype(np.float32))

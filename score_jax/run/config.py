@@ -58,6 +58,12 @@ class OffPolicyConfig:
     this many steps of its episode and at every reset, as gSDE's ``sde_sample_freq`` (Raffin et
     al. 2021), counted in the environment's own steps (``EnvState.t``). 1 = fresh noise every
     step; None = the environment's suggestion (``env.hints.exploration_hold``)."""
+    exploration_shift: float = 0.0
+    """Std of a shift shared by all continuous dims of a sub-space, added (before the tanh) to
+    the stochastic policy's action when collecting data and held like its noise
+    (``exploration_hold``). The policy's own Gaussian noise is independent per dim, so the mean
+    of a sub-space's 24 hourly setpoints barely moves; the shift explores that mean directly
+    (``run.exploration.shift_continuous``). Behaviour only: the losses never see it. 0 = off."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -40,6 +40,7 @@ from score_jax.core.failures import fail_batch
 from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
 from score_jax.run.config import OffPolicyConfig
 from score_jax.run.distributed import place_tree
+from score_jax.run.exploration import shift_continuous
 
 
 @struct.dataclass
@@ -112,6 +113,10 @@ class Trainer:
         self.hold = env.hints.pick("exploration_hold", config.exploration_hold)
         self.updates_per_step = env.hints.pick("updates_per_step", config.updates_per_step)
         self.n_step = env.hints.pick("n_step", config.n_step)
+        # [n_agents, width] the agents' real continuous columns (``exploration_shift``)
+        space = env.space
+        continuous = (space.dim_mask & ~space.discrete_mask)[self.agent_index]
+        self.continuous = np.pad(continuous, ((0, 0), (0, algo.width - space.max_dim)))
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
@@ -273,13 +278,26 @@ class Trainer:
         works for every algorithm's ``act`` unchanged.
         """
         if self.hold == 1:
-            return self.algo.act(state.agent, state.env_state.obs, key, False), state.explore_keys
-        redraw = (state.env_state.t % self.hold) == 0
-        keys = jnp.where(
-            redraw[:, None], jax.random.split(key, self.config.num_envs), state.explore_keys
-        )
-        act_one = lambda obs, k: self.algo.act(state.agent, obs[None], k, False)[0]
-        return jax.vmap(act_one)(state.env_state.obs, keys), keys
+            keys = state.explore_keys
+            actions = self.algo.act(state.agent, state.env_state.obs, key, False)
+        else:
+            redraw = (state.env_state.t % self.hold) == 0
+            keys = jnp.where(
+                redraw[:, None], jax.random.split(key, self.config.num_envs), state.explore_keys
+            )
+            act_one = lambda obs, k: self.algo.act(state.agent, obs[None], k, False)[0]
+            actions = jax.vmap(act_one)(state.env_state.obs, keys)
+        std = self.config.exploration_shift
+        if std > 0.0:
+            # the shift is drawn apart from the policy's own noise, held with the env's key
+            shift_keys = (
+                jax.random.split(jax.random.fold_in(key, 1), self.config.num_envs)
+                if self.hold == 1
+                else jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+            )
+            shift = lambda a, k: shift_continuous(a, self.continuous, k, std)
+            actions = jax.vmap(shift)(actions, shift_keys)
+        return actions, keys
 
     def _apply_train_failures(self, env_action, last_action, key):
         """Training-time failures through the shared failure function; returns

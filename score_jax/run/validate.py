@@ -60,7 +60,14 @@ POSITIVE = frozenset(
     | {"reward_scale", "reward_scaling", "code_contrast_temperature"}
 )
 NON_NEGATIVE = frozenset(
-    {"entropy_cost", "penalty_coef", "kl_weight", "action_recon_weight", "maddpg_noise"}
+    {
+        "entropy_cost",
+        "penalty_coef",
+        "kl_weight",
+        "action_recon_weight",
+        "maddpg_noise",
+        "exploration_shift",
+    }
     | {"discrete_entropy_scale", "head_init_scale", "code_contrast_weight"}
 )
 # Options of the end-of-run report: a resumed run may change them.
