@@ -63,7 +63,8 @@ class OffPolicyConfig:
     the stochastic policy's action when collecting data and held like its noise
     (``exploration_hold``). The policy's own Gaussian noise is independent per dim, so the mean
     of a sub-space's 24 hourly setpoints barely moves; the shift explores that mean directly
-    (``run.exploration.shift_continuous``). Behaviour only: the losses never see it. 0 = off."""
+    (``run.exploration.shift_continuous``). Behaviour only: the losses never see it. In-process
+    learners only (brax's SAC/PPO/H-PPO keep their own noise, as for the hold). 0 = off."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -37,7 +37,7 @@ from score_jax.agents.replay import (
     replay_sample_nstep,
 )
 from score_jax.core.failures import fail_batch
-from score_jax.core.spaces import agents_to_env_action, sample_agent_actions
+from score_jax.core.spaces import agents_to_env_action, pad_width, sample_agent_actions
 from score_jax.run.config import OffPolicyConfig
 from score_jax.run.distributed import place_tree
 from score_jax.run.exploration import shift_continuous
@@ -116,7 +116,7 @@ class Trainer:
         # [n_agents, width] the agents' real continuous columns (``exploration_shift``)
         space = env.space
         continuous = (space.dim_mask & ~space.discrete_mask)[self.agent_index]
-        self.continuous = np.pad(continuous, ((0, 0), (0, algo.width - space.max_dim)))
+        self.continuous = pad_width(continuous, algo.width, False)
         self.epoch = jax.jit(self._epoch)
 
     # -- state -------------------------------------------------------------------------
