@@ -361,8 +361,8 @@ def can_transfer(cfg: TrainConfig) -> bool:
     return False
 
 
-def _seeds_dir(seeds: int) -> str:
-    return "s0" if seeds == 1 else f"s0-{seeds - 1}"
+def _seeds_dir(seeds: int, first: int = 0) -> str:
+    return f"s{first}" if seeds == 1 else f"s{first}-{first + seeds - 1}"
 
 
 def action_repeat(cfg: TrainConfig) -> int:
@@ -393,13 +393,15 @@ def _transfer_variants(args: CompareArgs, algo: str) -> tuple[str, ...]:
     return ("plain",)
 
 
-def refuse_seed_offset(base: TrainConfig) -> None:
+def refuse_seed_offset(base: TrainConfig, offset_option: str = "") -> None:
     """Rows train seeds 0..K-1 (``row_config``), so a ``--base.seed`` other than 0 is an
-    error for every script that builds rows, rather than silently ignored."""
+    error for every script that builds rows, rather than silently ignored; ``offset_option``
+    names the script's own option for a later draw of seeds, if it has one."""
     if base.seed != 0:
+        later = f"; a later draw of seeds: {offset_option}" if offset_option else ""
         raise SystemExit(
             f"error: --base.seed {base.seed} is not used here: every run trains seeds 0..K-1 "
-            "(--seeds K)"
+            f"(--seeds K){later}"
         )
 
 

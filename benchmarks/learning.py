@@ -127,8 +127,12 @@ class LearningArgs:
     """Cap everything (2 seeds, 16k simulated days, 10k Spider steps, 300 ASRL steps, 2 episodes
     per evaluation, 4 evaluations per run): checks the pipeline in minutes, not the targets."""
     seeds: int = 5
-    """Greenhouse seeds (0 .. seeds-1), trained in one run per decision interval
-    (``--num-seeds``)."""
+    """Greenhouse seeds (first-seed .. first-seed + seeds - 1), trained in one run per decision
+    interval (``--num-seeds``)."""
+    first_seed: int = 0
+    """First greenhouse seed: 6 with ``--seeds 6`` trains seeds 6..11, a second draw of the same
+    settings (in its own run directory, ``s6-11``; the references use this seed's evaluation
+    key)."""
     env_steps: int = 0
     """Simulated days per greenhouse seed, for the 8-day and the daily run alike; 0 = the main
     job's (the presets of ``--base``: 144k decisions x 8 days = 1.152 M)."""
@@ -359,8 +363,11 @@ def run_config(
     cargs = compare.CompareArgs(
         seeds=seeds, env_steps=env_steps, eval_episodes=args.eval_episodes, base=base
     )
-    run_dir = os.path.join(args.work_dir, base.env, name, compare._seeds_dir(seeds))
-    cfg = compare.row_config(cargs, base.env, algo, run_dir=run_dir)
+    first = args.first_seed if base.env == "greenhouse" else 0
+    run_dir = os.path.join(args.work_dir, base.env, name, compare._seeds_dir(seeds, first))
+    cfg = dataclasses.replace(
+        compare.row_config(cargs, base.env, algo, run_dir=run_dir), seed=first
+    )
     repeat = compare.action_repeat(base)
     # the planned references are this script's job (not part of a run's identity)
     return dataclasses.replace(cfg, eval_every=interval // repeat, planned_references=False)
@@ -1075,7 +1082,9 @@ def main(args: LearningArgs) -> int:
     """Run the selected parts; 0 when every run trained (targets met or not), 1 otherwise."""
     if "greenhouse" in args.envs and not (args.main or args.daily):
         raise SystemExit("error: --no-main --no-daily leaves no greenhouse run to train")
-    compare.refuse_seed_offset(args.base)
+    compare.refuse_seed_offset(args.base, offset_option="--first-seed S")
+    if args.first_seed < 0:
+        raise SystemExit(f"error: --first-seed must be >= 0, got {args.first_seed}")
     enable_compile_cache(enabled=args.base.compile_cache)
     args = resolved(args)
     outs = []

@@ -155,6 +155,12 @@ def test_plans_at_full_budget(tmp_path):
     assert daily.total_steps // 64 == main.total_steps // main.off_policy.num_envs
     assert main.run_dir != daily.run_dir and main.run_dir.endswith("s0-4")
     assert not main.planned_references and main.robustness_seeds == 0
+    # a second draw of the same settings: seeds 6..10 in their own run directories
+    later = learning.greenhouse_configs(dataclasses.replace(args, first_seed=6))
+    assert [(c.seed, c.num_seeds) for c in later.values()] == [(6, 5), (6, 5)]
+    assert later["8-day"].run_dir == main.run_dir[: -len("s0-4")] + "s6-10"
+    assert dataclasses.replace(later["8-day"], seed=0, run_dir=main.run_dir) == main
+    assert learning.spider_configs(dataclasses.replace(args, first_seed=6))["score"].seed == 0
 
     spider = learning.spider_configs(args)
     assert set(spider) == {"score", "sac"}
@@ -196,7 +202,8 @@ def test_no_main_trains_only_the_daily_run(tmp_path, monkeypatch):
 
 def test_seed_offset_is_refused_by_every_script_that_builds_rows(tmp_path):
     """Rows train seeds 0..K-1, so ``--base.seed 6`` is an error before anything starts in
-    learning.py, compare.py and paper.py (it used to retrain seeds 0..K-1 silently)."""
+    learning.py, compare.py and paper.py (it used to retrain seeds 0..K-1 silently); learning.py
+    names its own option for a later draw, and refuses a negative one."""
     from benchmarks import paper
 
     args = _tiny_args(tmp_path)
@@ -209,6 +216,10 @@ def test_seed_offset_is_refused_by_every_script_that_builds_rows(tmp_path):
     for run_main in mains:
         with pytest.raises(SystemExit, match="--base.seed 6 is not used"):
             run_main()
+    with pytest.raises(SystemExit, match="--base.seed 6 is not used.*--first-seed S"):
+        mains[0]()
+    with pytest.raises(SystemExit, match="--first-seed must be >= 0"):
+        learning.main(dataclasses.replace(args, first_seed=-1))
     assert not os.listdir(tmp_path)  # refused before any output or run directory
 
 
