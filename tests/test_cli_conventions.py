@@ -29,6 +29,8 @@ from score_jax.run.writers import read_csv
 from tests.test_writers import _tb_scalars, _wandb_history
 from tests.tiny import tiny_cli_args, tiny_config
 
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
+
 HAS_WANDB = importlib.util.find_spec("wandb") is not None
 HAS_FFMPEG = importlib.util.find_spec("imageio_ffmpeg") is not None
 HEADER_ITEMS = (

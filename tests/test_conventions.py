@@ -308,3 +308,33 @@ def test_describe_prints_name_kind_dims_range_default_units_and_exits(capsys):
     assert "leg_mid_left" in capsys.readouterr().out and "normalised torque" in (
         envs.make("spider").space.describe()
     )
+
+
+def test_test_modules_holding_a_slow_test_are_scheduled_first():
+    """scripts/test.sh keeps the order tests/conftest.py gives (--no-loadscope-reorder): modules
+    with a slow test first, in collection order, then the others by number of tests."""
+    from tests.conftest import pytest_collection_modifyitems
+
+    class Item:
+        def __init__(self, nodeid, slow=False):
+            self.nodeid, self.slow = nodeid, slow
+
+        def get_closest_marker(self, name):
+            return name == "slow" and self.slow or None
+
+    items = [
+        Item("tests/test_a.py::x"),
+        Item("tests/test_b.py::x"),
+        Item("tests/test_b.py::y"),
+        Item("tests/test_c.py::x", slow=True),
+        Item("tests/test_d.py::x"),
+        Item("tests/test_d.py::y", slow=True),
+        Item("tests/test_e.py::x"),
+        Item("tests/test_e.py::y"),
+        Item("tests/test_e.py::z"),
+    ]
+    pytest_collection_modifyitems(None, items)
+    modules = list(dict.fromkeys(i.nodeid.split("::")[0][len("tests/test_") :] for i in items))
+    assert modules == ["c.py", "d.py", "e.py", "b.py", "a.py"]
+    assert [i.nodeid for i in items[1:3]] == ["tests/test_d.py::x", "tests/test_d.py::y"]
+    assert "--no-loadscope-reorder" in open(os.path.join(ROOT, "scripts", "test.sh")).read()

@@ -37,7 +37,10 @@ def _gloo_available() -> bool:
     return hasattr(xla_client._xla, "make_gloo_tcp_collectives")
 
 
-pytestmark = pytest.mark.skipif(not _gloo_available(), reason="jaxlib has no gloo collectives")
+pytestmark = [
+    pytest.mark.slow,  # scheduled first (conftest)
+    pytest.mark.skipif(not _gloo_available(), reason="jaxlib has no gloo collectives"),
+]
 
 # Process 1's wrapper: record every write-like file operation under the run directory (Python's
 # audit events; orbax's own array writes happen only inside a save, which process 1 never

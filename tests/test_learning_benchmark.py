@@ -23,6 +23,8 @@ from score_jax.core.spaces import CompositeSpace, SubSpace
 from score_jax.run.config import TrainConfig
 from tests.tiny import TINY_OFF_POLICY, TINY_SCORE
 
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
+
 DECISIONS = 400  # per seed, decisions held 8 days: two epochs of TINY_OFF_POLICY
 DAYS = 8 * DECISIONS
 # The pipeline, not SCORE's representation stage: without ASRL a run skips its pretraining

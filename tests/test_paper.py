@@ -13,6 +13,8 @@ from benchmarks import paper
 from score_jax.run.config import TrainConfig
 from tests.tiny import TINY_OFF_POLICY, TINY_SCORE
 
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
+
 
 def test_quick_pipeline_writes_tables_figures_and_claims(tmp_path, capfd):
     out, work = tmp_path / "out", tmp_path / "work"

@@ -23,6 +23,8 @@ from score_jax.run.driver import NonFiniteError, train
 from score_jax.run.validate import UsageError
 from tests.tiny import TINY_OFF_POLICY, TINY_SCORE, tiny_cli_args, tiny_config
 
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

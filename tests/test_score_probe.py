@@ -3,9 +3,12 @@
 import dataclasses
 
 import jax.numpy as jnp
+import pytest
 
 from score_jax.run.driver import train
 from tests.tiny import TINY_OFF_POLICY, tiny_config
+
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
 
 
 def test_score_solves_the_probe(tmp_path):

@@ -22,6 +22,8 @@ from score_jax.run.checkpoint import Checkpointer
 from score_jax.run.driver import train
 from tests.tiny import tiny_config
 
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
+
 SILENT = lambda *a: None  # noqa: E731
 SEEDS = 3
 # A vmapped program accumulates its sums in another order than the one-seed program (XLA's CPU

@@ -18,6 +18,8 @@ from score_jax.run.driver import train
 from score_jax.run.validate import UsageError
 from tests.tiny import tiny_config
 
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
+
 
 @pytest.fixture(scope="module")
 def subset_run(tmp_path_factory):
