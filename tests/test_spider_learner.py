@@ -3,10 +3,13 @@ restore."""
 
 import jax
 import numpy as np
+import pytest
 
 from score_jax.run.build import restore_run
 from score_jax.run.driver import train
 from tests.tiny import tiny_config
+
+pytestmark = pytest.mark.slow  # scheduled first (conftest)
 
 
 def test_score_trains_on_the_spider(tmp_path):
