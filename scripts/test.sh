@@ -22,8 +22,7 @@ fi
 .venv/bin/ruff check .
 .venv/bin/lint-imports
 export JAX_PLATFORMS="${JAX_PLATFORMS:-cpu}"
-# Software rendering only where libOSMesa is installed: without it MUJOCO_GL=osmesa makes
-# `import mujoco` fail outright, while unset the Spider still simulates and rendering tests skip.
-if ldconfig -p 2>/dev/null | grep -q libOSMesa; then export MUJOCO_GL="${MUJOCO_GL:-osmesa}"; fi
+# MUJOCO_GL: tests/conftest.py picks osmesa where libOSMesa is installed (and test subprocesses
+# inherit it); without the library it stays unset, so only the rendering tests skip.
 # Whole modules per worker (module fixtures compile once), slow modules first (tests/conftest.py).
 exec .venv/bin/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=15 "$@"
